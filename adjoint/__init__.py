@@ -1,0 +1,1 @@
+"""Adjoint sensitivities: derivative blocks, the block adjoint solve, gradient checks."""

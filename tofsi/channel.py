@@ -1,0 +1,44 @@
+"""The structured mesh of a scene's channel, conforming to every rectangle edge."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofsi.errors import InputError
+from tofsi.grading import graded_axis
+from tofsi.mesh import DESIGN, FLUID, SOLID, StructuredQuadMesh
+
+
+def inside(points: np.ndarray, rect) -> np.ndarray:
+    """Points ``(m, 2)`` strictly inside the rectangle ``[x0, x1, y0, y1]``."""
+    x0, x1, y0, y1 = rect
+    return (points[:, 0] > x0) & (points[:, 0] < x1) & (points[:, 1] > y0) & (points[:, 1] < y1)
+
+
+def build_mesh(geometry, settings) -> StructuredQuadMesh:
+    """Mesh of ``geometry`` (a :class:`tofsi.scene.Geometry`) with ``settings`` (MeshSettings).
+
+    Element tags by centre: design rectangle -> DESIGN, solids -> SOLID,
+    holes -> FLUID, in that order of precedence (later wins).
+    """
+    rects = list(geometry.solids) + list(geometry.holes) + ([geometry.design] if geometry.design else [])
+    xs = graded_axis(geometry.length, [v for r in rects for v in r[:2]],
+                     [tuple(r[:2]) for r in geometry.solids],
+                     settings.h_min, settings.h_max, settings.growth)
+    ys = graded_axis(geometry.height, [v for r in rects for v in r[2:]],
+                     [tuple(r[2:]) for r in geometry.solids],
+                     settings.h_min, settings.h_max, settings.growth)
+    n_elements = (len(xs) - 1) * (len(ys) - 1)
+    if n_elements > settings.max_elements:
+        raise InputError("mesh.h_min", settings.h_min,
+                         f"gives {n_elements} elements, more than mesh.max_elements = "
+                         f"{settings.max_elements}; use a larger h_min/h_max")
+    mesh = StructuredQuadMesh(xs, ys)
+    region = np.full(mesh.n_elements, FLUID, dtype=np.int8)
+    if geometry.design:
+        region[inside(mesh.centroids, geometry.design)] = DESIGN
+    for rect in geometry.solids:
+        region[inside(mesh.centroids, rect)] = SOLID
+    for rect in geometry.holes:
+        region[inside(mesh.centroids, rect)] = FLUID
+    return mesh.with_regions(region)

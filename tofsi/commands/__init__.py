@@ -1,0 +1,1 @@
+"""One module per ``tofsi`` subcommand; each exposes ``run(scene, args, ctx) -> dict``."""

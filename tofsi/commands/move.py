@@ -1,0 +1,66 @@
+"""``tofsi move SCENE``: apply the scene's structure motion with its mover; report quality."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofsi import quality
+from tofsi.errors import NumericalError
+from tofsi.mesh import SOLID
+from tofsi.motion import motion_setup, moved_quality, run_move
+from tofsi.output import write_json, write_vtu
+from tofsi.plotting import plot_mesh
+
+
+def write_moved_mesh(ctx, setup, displacement, name, title, cell_data=None):
+    mesh = setup.mesh
+    moved = mesh.points + displacement
+    skew = quality.skewness(moved, mesh.quads)
+    data = {"region": mesh.region, "layer": setup.layer, "skewness": skew,
+            "area_change": quality.area_change(mesh.points, moved, mesh.quads)}
+    for key, values in (cell_data or {}).items():          # per moving quad -> per element
+        full = np.full(mesh.n_elements, -1.0)
+        full[setup.moving] = values
+        data[key] = full
+    write_vtu(ctx.path(f"{name}.vtu"), moved, {"quad": mesh.quads},
+              point_data={"displacement": displacement}, cell_data=data)
+    plot_mesh(ctx.path(f"{name}.png"), moved, mesh.quads, skew, mesh.interface_edges, title=title,
+              vmin=min(0.0, float(skew.min())), vmax=1.0, grey=mesh.region == SOLID, cmap="RdYlGn")
+
+
+def run(scene, args, ctx) -> dict:
+    setup = motion_setup(scene)
+    ctx.say(f"{scene.name}: moving {setup.moving.size} quads with the {scene.mover.name} mover "
+            f"({scene.deformation.mode}); stiffening layers {list(scene.mover.layers) or 'none'}")
+    bar = ctx.progress(1, f"{scene.mover.name}")
+    try:
+        _, result = run_move(scene, progress=bar, setup=setup)
+    except NumericalError as err:
+        bar.close()
+        state = getattr(err, "state", None)
+        if state is not None:
+            write_moved_mesh(ctx, setup, state, "failed_mesh", f"{scene.name}: FAILED ({err})")
+        raise
+    bar.close()
+    q = moved_quality(setup, result.displacement)
+    r = result.report
+    figures = {"scene": scene.name, "mover": scene.mover.name, "mode": scene.deformation.mode,
+               "converged": r.converged, "min_skewness": q.min_skewness,
+               "min_area_change": q.min_area_change, "max_area_change": q.max_area_change,
+               "n_inverted": q.n_inverted, "worst_element": q.min_skewness_element,
+               "worst_location": list(q.min_skewness_location), "wall_time_s": r.wall_time_s,
+               "increments": r.increments, "newton_iterations": r.newton_iterations,
+               "linear_solves": r.linear_solves, "factorizations": r.factorizations,
+               "cutbacks": r.cutbacks, "n_moving_elements": int(setup.moving.size)}
+    ctx.say(f"min skewness {q.min_skewness:.4f} (element {q.min_skewness_element} at "
+            f"({q.min_skewness_location[0]:.3f}, {q.min_skewness_location[1]:.3f})), area change "
+            f"{q.min_area_change:.4f} to {q.max_area_change:.4f}, {q.n_inverted} inverted; "
+            f"{r.increments} increments, {r.newton_iterations} Newton iterations, "
+            f"{r.wall_time_s:.2f} s")
+    write_moved_mesh(ctx, setup, result.displacement, "moved_mesh",
+                     f"{scene.name} ({scene.deformation.mode}), {scene.mover.name}: "
+                     f"min skewness {q.min_skewness:.3f}", result.cell_data)
+    write_json(ctx.path("move.json"), {"figures": figures, "report": r.as_dict()})
+    ctx.say("wrote " + ", ".join(ctx.written))
+    figures["outputs"] = list(ctx.written)
+    return figures

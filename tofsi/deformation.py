@@ -1,0 +1,114 @@
+"""Prescribed structural motions of the mesh-motion scenes.
+
+The motion is a displacement of every node of the solid elements:
+
+* ``translation`` -- rigid motion ``(0, -t)``;
+* ``rotation`` -- rigid clockwise rotation by ``theta`` about the solid's
+  area centroid ``c``: ``u = R (X - c) + c - X``, ``R = [[cos, sin], [-sin, cos]]``;
+* ``bending`` -- U shape facing down (Euler-Bernoulli kinematics): with
+  ``xi = (x - x_c) / (L/2)`` over the solid's extent, the centre line moves
+  ``v = -d xi^2`` and cross-sections rotate with it, ``u_x = -(y - y_c) v'``;
+  the tips move down by ``d``, the centre stays;
+* ``pressure`` -- a cantilever clamped on the channel walls under a uniform
+  pressure on its upstream (left-facing) faces, solved with plane-strain
+  elasticity on the solid and scaled so the largest displacement is
+  ``tip_displacement``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from tofsi.errors import InputError
+from tofsi.fem.assembly import element_dofs
+from tofsi.fem.dirichlet import DirichletOperator
+from tofsi.mesh import SOLID, StructuredQuadMesh
+from tofsi.physics.elasticity import element_stiffness, plane_strain_matrix
+from tofsi.quality import signed_area
+
+
+def solid_centroid(mesh: StructuredQuadMesh) -> np.ndarray:
+    """Area centroid of the solid elements [m]."""
+    solid = mesh.region == SOLID
+    area = signed_area(mesh.points, mesh.quads[solid])
+    return (mesh.centroids[solid] * area[:, None]).sum(axis=0) / area.sum()
+
+
+def rigid_rotation(points: np.ndarray, centre: np.ndarray, degrees_clockwise: float) -> np.ndarray:
+    """Displacement ``(m, 2)`` of a clockwise rotation about ``centre``."""
+    t = np.radians(degrees_clockwise)
+    R = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
+    rel = points - centre
+    return rel @ R.T - rel
+
+
+def u_bending(points: np.ndarray, extent: np.ndarray, tip: float) -> np.ndarray:
+    """U-shaped bending facing down over ``extent = [[xmin, ymin], [xmax, ymax]]``."""
+    xc, yc = extent.mean(axis=0)
+    half = 0.5 * (extent[1, 0] - extent[0, 0])
+    xi = (points[:, 0] - xc) / half
+    v = -tip * xi**2
+    slope = -2.0 * tip * xi / half
+    return np.column_stack([-(points[:, 1] - yc) * slope, v])
+
+
+def upstream_pressure_load(mesh: StructuredQuadMesh, pressure: float = 1.0) -> np.ndarray:
+    """Nodal forces ``(2 n,)`` of a uniform pressure on left-facing solid faces [N/m]."""
+    solid = (mesh.region == SOLID).reshape(mesh.ny, mesh.nx)
+    facing = np.zeros_like(solid)
+    facing[:, 1:] = solid[:, 1:] & ~solid[:, :-1]          # fluid to the left of a solid element
+    e = np.flatnonzero(facing.ravel())
+    q = mesh.quads[e]
+    height = mesh.points[q[:, 3], 1] - mesh.points[q[:, 0], 1]
+    f = np.zeros(2 * mesh.n_nodes)
+    np.add.at(f, 2 * q[:, 0], 0.5 * pressure * height)
+    np.add.at(f, 2 * q[:, 3], 0.5 * pressure * height)
+    return f
+
+
+def cantilever_under_pressure(mesh: StructuredQuadMesh, clamped_sides, poisson_ratio: float,
+                              tip_displacement: float) -> np.ndarray:
+    """Displacement ``(n, 2)`` of the solid under upstream pressure, scaled to the tip value."""
+    solid = np.flatnonzero(mesh.region == SOLID)
+    q = mesh.quads[solid]
+    dofs = element_dofs(q, 2)
+    Ke = element_stiffness(mesh.points[q], plane_strain_matrix(1.0, poisson_ratio))
+    in_solid = np.zeros(mesh.n_nodes, dtype=bool)
+    in_solid[q.ravel()] = True
+    clamped = np.concatenate([mesh.side_nodes(s) for s in clamped_sides])
+    clamped = clamped[in_solid[clamped]]
+    if clamped.size == 0:
+        raise InputError("structure.clamped", list(clamped_sides),
+                         "the solid touches none of these channel sides; it cannot be clamped")
+    fixed_nodes = np.union1d(clamped, np.flatnonzero(~in_solid))
+    bc = DirichletOperator(dofs, dofs, 2 * mesh.n_nodes, element_dofs(fixed_nodes[:, None], 2).ravel())
+    f = bc.homogenize(upstream_pressure_load(mesh))
+    u = spla.spsolve(bc.matrix(Ke).tocsc(), f).reshape(-1, 2)
+    peak = np.max(np.linalg.norm(u, axis=1))
+    if not np.isfinite(peak) or peak == 0.0:
+        raise InputError("deformation.mode", "pressure", "the solid has no upstream face to load")
+    return u * (tip_displacement / peak)
+
+
+def prescribed_motion(mesh: StructuredQuadMesh, deformation, structure) -> np.ndarray:
+    """Displacement ``(n, 2)`` of the solid nodes (zero elsewhere) for a scene's deformation."""
+    solid_nodes = mesh.nodes_of(SOLID)
+    if solid_nodes.size == 0:
+        raise InputError("geometry.solids", [], "a mesh-motion study needs a solid to move")
+    u = np.zeros((mesh.n_nodes, 2))
+    X = mesh.points[solid_nodes]
+    mode = deformation.mode
+    if mode == "translation":
+        u[solid_nodes, 1] = -deformation.translation
+    elif mode == "rotation":
+        u[solid_nodes] = rigid_rotation(X, solid_centroid(mesh), deformation.rotation_deg)
+    elif mode == "bending":
+        u[solid_nodes] = u_bending(X, np.array([X.min(axis=0), X.max(axis=0)]), deformation.bending_tip)
+    elif mode == "pressure":
+        u = cantilever_under_pressure(mesh, structure.clamped, structure.poisson_ratio,
+                                      deformation.tip_displacement)
+    else:
+        raise InputError("deformation.mode", mode,
+                         "allowed here: 'translation', 'rotation', 'bending', 'pressure'")
+    return u

@@ -1,0 +1,1 @@
+"""Reference-element machinery shared by every physics kernel and mover."""

@@ -1,0 +1,43 @@
+"""The bilinear geometry map of a batch of quads and its derivatives.
+
+Geometry is always the Q1 map of the 4 corner coordinates ``Xe`` ``(E, 4, 2)``;
+the functions accept complex coordinates so that shape derivatives can be
+taken by the complex step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofsi.fem.shapes import shape_functions
+
+
+def jacobians(Xe: np.ndarray, points: np.ndarray):
+    """Jacobian ``J[e, g] = dx/dxi`` ``(E, G, 2, 2)``, its determinant and inverse.
+
+    ``J[e, g, i, a] = sum_k Xe[e, k, i] dN1_k/dxi_a``; ``Jinv`` maps reference
+    gradients to physical ones: ``grad N = dN_ref @ Jinv``.
+    """
+    _, dN1 = shape_functions(1, points)                     # (G, 4, 2)
+    J = np.einsum("eki,gka->egia", Xe, dN1)                 # (E, G, 2, 2)
+    det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
+    inv = np.empty_like(J)
+    inv[..., 0, 0] = J[..., 1, 1] / det
+    inv[..., 1, 1] = J[..., 0, 0] / det
+    inv[..., 0, 1] = -J[..., 0, 1] / det
+    inv[..., 1, 0] = -J[..., 1, 0] / det
+    return J, det, inv
+
+
+def physical_gradients(Xe: np.ndarray, degree: int, points: np.ndarray):
+    """Gradients ``(E, G, k, 2)`` of the degree-``degree`` basis and ``det J`` ``(E, G)``."""
+    _, dN = shape_functions(degree, points)                 # (G, k, 2)
+    _, det, inv = jacobians(Xe, points)
+    grad = np.einsum("gka,egai->egki", dN, inv)
+    return grad, det
+
+
+def map_points(Xe: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Physical coordinates ``(E, G, 2)`` of reference points ``(G, 2)``."""
+    N1, _ = shape_functions(1, points)
+    return np.einsum("gk,eki->egi", N1, Xe)

@@ -1,0 +1,67 @@
+"""Mesh-motion studies: a scene's structure motion applied to its fluid mesh.
+
+The moving quads are the non-solid elements; every solid node follows the
+structure (``x = u``), every node on the channel boundary stays (``x = 0``),
+and the scene's mover places the rest. Layered stiffening factors
+(``mover.layers``) apply to the element layers counted from the
+fluid-structure interface.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import movers
+from movers.base import MotionProblem, MoveResult
+from tofsi import quality
+from tofsi.channel import build_mesh
+from tofsi.deformation import prescribed_motion
+from tofsi.errors import InputError
+from tofsi.layers import element_layers, stiffening_field
+from tofsi.mesh import SIDES, SOLID, StructuredQuadMesh
+
+
+@dataclass
+class MotionSetup:
+    mesh: StructuredQuadMesh
+    problem: MotionProblem
+    moving: np.ndarray           # (Em,) element ids of the moving quads
+    layer: np.ndarray            # (E,) layer number from the interface (0: none)
+    prescribed: np.ndarray       # (n, 2) structure motion, zero elsewhere [m]
+
+
+def boundary_nodes(mesh: StructuredQuadMesh) -> np.ndarray:
+    return np.unique(np.concatenate([mesh.side_nodes(s) for s in SIDES]))
+
+
+def motion_setup(scene, prescribed: np.ndarray | None = None) -> MotionSetup:
+    """Mesh, mover problem and prescribed motion of a mesh-motion scene."""
+    mesh = build_mesh(scene.geometry, scene.mesh)
+    if prescribed is None:
+        prescribed = prescribed_motion(mesh, scene.deformation, scene.structure)
+    moving = np.flatnonzero(mesh.region != SOLID)
+    fixed = np.union1d(mesh.nodes_of(SOLID), boundary_nodes(mesh))
+    n_layers = len(scene.mover.layers)
+    layer = element_layers(mesh.incidence, mesh.interface_nodes, mesh.region != SOLID,
+                           n_layers=max(n_layers, 10))
+    factors = stiffening_field(layer, scene.mover.layers)
+    problem = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
+    return MotionSetup(mesh, problem, moving, layer, prescribed)
+
+
+def run_move(scene, progress=None, setup: MotionSetup | None = None) -> tuple[MotionSetup, MoveResult]:
+    """Apply the scene's motion with its mover; raises NumericalError on failure."""
+    if scene.effects.mesh_motion == "none":
+        raise InputError("mover.name", "none", "a mesh-motion study needs a mover; allowed: "
+                         + ", ".join(map(repr, movers.available())))
+    setup = setup or motion_setup(scene)
+    mover = movers.mover_class(scene.mover.name)(scene.mover.options)
+    return setup, mover.move(setup.problem, setup.prescribed, progress)
+
+
+def moved_quality(setup: MotionSetup, displacement: np.ndarray) -> quality.QualitySummary:
+    """Quality of the moving quads after the move."""
+    mesh = setup.mesh
+    return quality.summary(mesh.points, mesh.points + displacement, mesh.quads, setup.moving)

@@ -1,0 +1,1 @@
+"""Physics kernels and residual blocks: elasticity, Taylor-Hood flow, fluid load."""

@@ -1,0 +1,261 @@
+"""Scenes: a channel with structures, a mesh, effects, a mover and settings.
+
+A scene is a TOML file (see ``examples/scenes/``) loaded into a frozen,
+validated :class:`Scene`. ``--set KEY=VALUE`` overrides are applied to the
+raw tables before validation, so they are checked exactly like the file.
+
+Which mover moves the mesh is one setting, written either as
+``effects.mesh_motion`` or as ``mover.name`` (``"none"`` switches mesh
+motion off); both spellings address the same value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Mapping
+
+import movers
+from tofsi.config import build, coerce, option
+from tofsi.errors import InputError
+from tofsi.settings import DesignSettings, FluidSettings, OptimizerSettings, StructureSettings
+
+Rectangle = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """A channel ``[0, length] x [0, height]`` with solid, hole and design rectangles."""
+
+    length: float = option(2.0, gt=0, doc="channel length along x [m]")
+    height: float = option(1.0, gt=0, doc="channel height along y [m]")
+    solids: tuple[tuple[float, ...], ...] = option((), length=4,
+                                                   doc="solid rectangles [x0, x1, y0, y1] [m]")
+    holes: tuple[tuple[float, ...], ...] = option((), length=4,
+                                                  doc="fluid rectangles cut out of the solids [m]")
+    design: tuple[float, ...] = option((), doc="design rectangle [x0, x1, y0, y1] [m]; "
+                                               "empty: no design region")
+
+    def __post_init__(self):
+        if self.design and len(self.design) != 4:
+            raise InputError("design", self.design, "expected [] or [x0, x1, y0, y1]")
+        named = [("solids", i, r) for i, r in enumerate(self.solids)]
+        named += [("holes", i, r) for i, r in enumerate(self.holes)]
+        if self.design:
+            named.append(("design", None, self.design))
+        for name, i, (x0, x1, y0, y1) in named:
+            key = name if i is None else f"{name}[{i}]"
+            if not (0 <= x0 < x1 <= self.length and 0 <= y0 < y1 <= self.height):
+                raise InputError(key, [x0, x1, y0, y1],
+                                 f"need 0 <= x0 < x1 <= {self.length} and 0 <= y0 < y1 <= "
+                                 f"{self.height} (inside the channel)")
+
+
+@dataclass(frozen=True)
+class MeshSettings:
+    """Graded structured mesh: fine at the structures, coarser away from them."""
+
+    h_min: float = option(0.02, gt=0, doc="element size at the structures [m]")
+    h_max: float = option(0.08, gt=0, doc="largest element size [m]")
+    growth: float = option(1.15, ge=1, le=3, doc="size ratio of neighbouring elements away "
+                                                 "from the structures (1: uniform h_min)")
+    max_elements: int = option(2_000_000, ge=1, doc="refuse meshes with more elements")
+
+    def __post_init__(self):
+        if self.h_min > self.h_max:
+            raise InputError("h_min", self.h_min, f"allowed: 0 < h_min <= h_max = {self.h_max}")
+
+
+DEFORMATION_MODES = ("none", "translation", "rotation", "bending", "pressure", "fsi")
+
+
+@dataclass(frozen=True)
+class Deformation:
+    """The structure's prescribed motion in a mesh-motion study."""
+
+    mode: str = option("none", choices=DEFORMATION_MODES,
+                       doc="translation/rotation/bending: rigid or U-shaped motion of the "
+                           "solid; pressure: cantilever under uniform upstream pressure; "
+                           "fsi: from the coupled fluid-structure solve")
+    translation: float = option(0.2, doc="rigid motion in -y [m]")
+    rotation_deg: float = option(30.0, ge=-180, le=180,
+                                 doc="clockwise rotation about the solid's centroid [deg]")
+    bending_tip: float = option(0.15, doc="downward motion of both tips of the U bending [m]")
+    tip_displacement: float = option(0.15, gt=0,
+                                     doc="largest structural displacement for pressure/fsi [m]")
+    scale: bool = option(True, doc="fsi: scale the computed deformation to tip_displacement")
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Which physics a scene simulates; a disabled effect costs nothing."""
+
+    fluid: str = option("none", choices=("navier-stokes", "stokes", "none"), doc="fluid model")
+    structure: str = option("none", choices=("linear-elastic", "none"), doc="structure model")
+    mesh_motion: str = option("none", doc="mover name, or none (same setting as mover.name)")
+    coupling: str = option("one-way", choices=("one-way", "two-way"),
+                           doc="two-way: the flow sees the deformed mesh")
+
+    def __post_init__(self):
+        names = movers.available()
+        if self.mesh_motion != "none" and self.mesh_motion not in names:
+            raise InputError("mesh_motion", self.mesh_motion,
+                             "allowed: 'none' or one of " + ", ".join(map(repr, names)))
+
+
+@dataclass(frozen=True)
+class MoverSettings:
+    """The mover and its parameters (``[mover]`` plus ``[mover.<name>]`` tables)."""
+
+    name: str
+    layers: tuple[float, ...] = ()
+    params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def options(self):
+        """The selected mover's parameter record (None when mesh motion is off)."""
+        return self.params.get(self.name)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated, frozen scene."""
+
+    name: str
+    description: str
+    geometry: Geometry
+    mesh: MeshSettings
+    deformation: Deformation
+    effects: Effects
+    mover: MoverSettings
+    fluid: FluidSettings
+    structure: StructureSettings
+    design: DesignSettings
+    optimizer: OptimizerSettings
+    source: str = ""
+
+    @property
+    def has_design(self) -> bool:
+        return bool(self.geometry.design)
+
+
+_TABLES = {"geometry": Geometry, "mesh": MeshSettings, "deformation": Deformation,
+           "fluid": FluidSettings, "structure": StructureSettings, "design": DesignSettings,
+           "optimizer": OptimizerSettings}
+_TOP = {"name", "description", "effects", "mover", *_TABLES}
+
+
+def _build_mover(raw: dict, mover_name: str) -> MoverSettings:
+    names = movers.available()
+    raw = dict(raw)
+    layers = raw.pop("layers", [])
+    for key, value in raw.items():
+        if key not in names:
+            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, or a "
+                             "parameter table of one of " + ", ".join(map(repr, names)))
+    factors = coerce(tuple[float, ...], layers, "mover.layers",
+                     dict(gt=0, doc="stiffening factor per element layer"))
+    params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
+    return MoverSettings(name=mover_name, layers=factors, params=MappingProxyType(params))
+
+
+def _mover_name(raw: dict) -> str:
+    by_effects = raw.get("effects", {}).get("mesh_motion") if isinstance(raw.get("effects"), dict) else None
+    by_mover = raw.get("mover", {}).get("name") if isinstance(raw.get("mover"), dict) else None
+    if by_effects is not None and by_mover is not None and by_effects != by_mover:
+        raise InputError("mover.name", by_mover,
+                         f"conflicts with effects.mesh_motion = {by_effects!r}; set one of them")
+    name = by_mover if by_mover is not None else by_effects
+    key = "mover.name" if by_mover is not None else "effects.mesh_motion"
+    names = movers.available()
+    if name is not None and name != "none" and name not in names:
+        raise InputError(key, name, "allowed: 'none' or one of " + ", ".join(map(repr, names)))
+    return "none" if name is None else name
+
+
+def scene_from_dict(raw: dict, source: str = "") -> Scene:
+    """Validate raw tables (as read from TOML) into a :class:`Scene`."""
+    if not isinstance(raw, dict):
+        raise InputError("scene", raw, "expected a table")
+    for key in raw:
+        if key not in _TOP:
+            raise InputError(key, raw[key], "unknown key; allowed keys: " + ", ".join(sorted(_TOP)))
+    name = raw.get("name")
+    if not isinstance(name, str) or not name or any(c in name for c in "/\\\0"):
+        raise InputError("name", name, "required: a non-empty string without slashes")
+    description = raw.get("description", "")
+    if not isinstance(description, str):
+        raise InputError("description", description, "expected a string")
+    mover_name = _mover_name(raw)
+    if not isinstance(mover_name, str):
+        raise InputError("mover.name", mover_name, "expected a string")
+    effects_raw = dict(raw.get("effects", {}) or {})
+    effects_raw["mesh_motion"] = mover_name
+    mover_raw = raw.get("mover", {})
+    if not isinstance(mover_raw, dict):
+        raise InputError("mover", mover_raw, "expected a table")
+    mover_raw = {k: v for k, v in mover_raw.items() if k != "name"}
+    tables = {key: build(cls, raw.get(key, {}), key) for key, cls in _TABLES.items()}
+    effects = build(Effects, effects_raw, "effects")
+    mover = _build_mover(mover_raw, mover_name)
+    return Scene(name=name, description=description, effects=effects, mover=mover,
+                 source=source, **tables)
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``"mover.yeoh.A20=1e3"`` -> (["mover", "yeoh", "A20"], 1000.0); values are TOML."""
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise InputError("--set", text, "expected KEY=VALUE with a dotted KEY, e.g. mover.name=spring")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()                          # bare words are strings
+    return key.split("."), parsed
+
+
+def apply_overrides(raw: dict, overrides) -> dict:
+    """A copy of ``raw`` with each ``KEY=VALUE`` (or ``(path, value)``) applied."""
+    import copy
+    raw = copy.deepcopy(raw)
+    for item in overrides or ():
+        path, value = parse_override(item) if isinstance(item, str) else item
+        if list(path) in (["mover", "name"], ["effects", "mesh_motion"]):
+            for alias in (["mover", "name"], ["effects", "mesh_motion"]):
+                if isinstance(raw.get(alias[0]), dict):
+                    raw[alias[0]].pop(alias[1], None)
+        table = raw
+        for part in path[:-1]:
+            nxt = table.setdefault(part, {})
+            if not isinstance(nxt, dict):
+                raise InputError(".".join(path), value, f"{part} is not a table")
+            table = nxt
+        table[path[-1]] = value
+    return raw
+
+
+def read_scene_file(path: str | Path) -> dict:
+    """Raw tables of a scene file, with clear errors for missing or malformed files."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("scene", str(path), "no such file")
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except PermissionError:
+        raise InputError("scene", str(path), "file is not readable") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise InputError("scene", str(path), f"not valid TOML ({err})") from None
+
+
+def load_scene(path: str | Path, overrides=None) -> Scene:
+    """Load, override and validate a scene file.
+
+    overrides : iterable of ``"dotted.key=value"`` strings (TOML values)
+    """
+    raw = apply_overrides(read_scene_file(path), overrides)
+    return scene_from_dict(raw, source=str(path))

@@ -1,0 +1,81 @@
+"""Physical and numerical settings of a scene: fluid, structure, design, optimizer.
+
+Each class is one TOML table of a scene file (``[fluid]``, ``[structure]``,
+``[design]``, ``[optimizer]``); every field states its unit and range.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from tofsi.config import option
+from tofsi.errors import InputError
+from tofsi.mesh import SIDES
+
+
+@dataclass(frozen=True)
+class FluidSettings:
+    """Steady incompressible flow with Brinkman friction (table ``[fluid]``)."""
+
+    density: float = option(1.0, ge=0, doc="fluid density [kg/m^3]; 0 gives Stokes flow")
+    viscosity: float = option(1.0, gt=0, doc="dynamic viscosity [Pa s]")
+    inlet_velocity: float = option(1.0, doc="peak of the parabolic inlet profile [m/s]")
+    outlet: str = option("zero-pressure", choices=("zero-pressure", "traction-free"),
+                         doc="outlet condition: mu dv/dn - p n = 0 (zero pressure for "
+                             "developed flow) or (-p I + 2 mu eps(v)) n = 0")
+    alpha_max: float = option(1e5, gt=0, doc="Brinkman friction of solid [kg/(m^3 s)]")
+    alpha_min: float = option(0.0, ge=0, doc="Brinkman friction of fluid [kg/(m^3 s)]")
+    brinkman_q: float = option(0.1, gt=0, doc="convexity q of the Brinkman interpolation")
+    newton_tol: float = option(1e-10, gt=0, lt=1, doc="Newton tolerance on the residual, "
+                               "relative to the residual of the zero state")
+    newton_max_iter: int = option(25, ge=1, le=1000, doc="Newton iterations per solve")
+    continuation_steps: int = option(4, ge=1, le=100,
+                                     doc="Reynolds continuation steps tried when a direct "
+                                         "Navier-Stokes solve fails")
+
+    def __post_init__(self):
+        if self.alpha_min > self.alpha_max:
+            raise InputError("alpha_min", self.alpha_min,
+                             f"allowed: 0 <= alpha_min <= alpha_max = {self.alpha_max}")
+
+
+@dataclass(frozen=True)
+class StructureSettings:
+    """Plane-strain linear elasticity with SIMP interpolation (table ``[structure]``)."""
+
+    youngs_modulus: float = option(1e5, gt=0, doc="Young's modulus of solid E0 [Pa]")
+    poisson_ratio: float = option(0.3, gt=-1.0, lt=0.5, doc="Poisson's ratio")
+    e_min_ratio: float = option(1e-9, gt=0, lt=1, doc="Emin / E0 of void (fluid) elements")
+    simp_penalty: float = option(3.0, ge=1, le=10, doc="SIMP exponent p in E = Emin + rho^p (E0 - Emin)")
+    clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
+                                      doc="channel sides where the structure is clamped")
+
+
+@dataclass(frozen=True)
+class DesignSettings:
+    """Density design: objective, volume, filter and projection (table ``[design]``)."""
+
+    objective: str = option("compliance", choices=("compliance", "dissipation", "pressure-drop"),
+                            doc="quantity to minimize")
+    volume_fraction: float = option(0.25, gt=0, lt=1,
+                                    doc="upper bound of the solid fraction of the design region")
+    filter_radius: float = option(0.045, gt=0, doc="density filter radius [m]")
+    eta: float = option(0.5, gt=0, lt=1, doc="projection threshold")
+    beta: tuple[float, ...] = option((1.0, 2.0, 4.0, 8.0, 16.0), ge=0, le=1000,
+                                     doc="projection sharpness schedule (one value per stage)")
+    penalty: tuple[float, ...] = option((3.0,), ge=1, le=10,
+                                        doc="SIMP exponent schedule (per stage; last value kept)")
+    brinkman_q: tuple[float, ...] = option((0.1,), gt=0,
+                                           doc="Brinkman q schedule (per stage; last value kept)")
+    stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
+
+
+@dataclass(frozen=True)
+class OptimizerSettings:
+    """NLopt driver (table ``[optimizer]``)."""
+
+    algorithm: str = option("MMA", choices=("MMA", "CCSAQ"), doc="NLopt LD_MMA or LD_CCSAQ")
+    max_iter: int = option(200, ge=1, doc="largest number of design iterations")
+    tol_change: float = option(1e-3, gt=0, doc="stop when max |gamma change| falls below")
+    tol_objective: float = option(1e-6, gt=0, doc="stop on relative objective change below")
+    output_every: int = option(10, ge=1, doc="write pictures and VTU every N iterations")
