@@ -1,0 +1,189 @@
+"""The interface every mover implements, and what movers share.
+
+A mover moves the nodes of a set of quads (the fluid mesh) so that nodes
+with prescribed motion (the structure and the channel walls) end where they
+are told, and returns the displacement of every node with a report.
+
+    result = mover.move(problem, prescribed)      # prescribed: (n, 2) [m]
+    result.displacement                           # (n, 2) [m]
+    result.report.converged, result.report.quality[-1]["min_skewness"]
+
+Nodes not used by any moving quad are held at their prescribed value.
+A mover that cannot deliver a valid mesh raises
+:class:`tofsi.errors.NumericalError` (exit status 3) whose diagnostic holds
+the report so far and the worst element.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from abc import ABC, abstractmethod
+from dataclasses import asdict, dataclass, field
+from typing import Callable, ClassVar
+
+import numpy as np
+
+from tofsi import quality
+from tofsi.errors import NumericalError
+from tofsi.fem.assembly import element_dofs
+from tofsi.fem.dirichlet import DirichletOperator
+from tofsi.linalg import make_solver, rigid_body_modes
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int, int, dict], None]
+
+
+@dataclass(frozen=True, eq=False)
+class MotionProblem:
+    """The mesh a mover works on.
+
+    points : (n, 2) reference node coordinates [m]
+    quads : (Em, 4) the moving quads, counter-clockwise
+    fixed_nodes : nodes whose displacement is prescribed
+    stiffening : (Em,) stiffness factor per moving quad (layered stiffening)
+    grid : (n, 2) integer fine-grid positions of the nodes (for the LU ordering), optional
+    """
+
+    points: np.ndarray
+    quads: np.ndarray
+    fixed_nodes: np.ndarray
+    stiffening: np.ndarray | None = None
+    grid: np.ndarray | None = None
+
+    def __post_init__(self):
+        n = self.points.shape[0]
+        used = np.zeros(n, dtype=bool)
+        used[self.quads.ravel()] = True
+        fixed = np.union1d(np.asarray(self.fixed_nodes, dtype=np.int64), np.flatnonzero(~used))
+        object.__setattr__(self, "fixed_nodes", fixed)
+        if self.stiffening is None:
+            object.__setattr__(self, "stiffening", np.ones(len(self.quads)))
+        if len(self.stiffening) != len(self.quads):
+            raise ValueError("stiffening needs one factor per moving quad")
+        if np.any(~np.isfinite(self.stiffening)) or np.any(self.stiffening <= 0):
+            raise ValueError("stiffening factors must be finite and positive")
+
+    @property
+    def n_nodes(self) -> int:
+        return self.points.shape[0]
+
+    @property
+    def dofs(self) -> np.ndarray:
+        """Element dofs ``(Em, 8)``, node-interleaved."""
+        return element_dofs(self.quads, 2)
+
+    @property
+    def fixed_dofs(self) -> np.ndarray:
+        return element_dofs(self.fixed_nodes[:, None], 2).ravel()
+
+    def dirichlet(self) -> DirichletOperator:
+        return DirichletOperator(self.dofs, self.dofs, 2 * self.n_nodes, self.fixed_dofs)
+
+    def dof_grid(self) -> np.ndarray | None:
+        """Grid positions of the dofs (both components of a node share one)."""
+        return None if self.grid is None else np.repeat(self.grid, 2, axis=0)
+
+    @classmethod
+    def from_mesh(cls, mesh, moving: np.ndarray, fixed_nodes: np.ndarray,
+                  stiffening: np.ndarray | None = None) -> "MotionProblem":
+        """The problem for the quads ``mesh.quads[moving]`` of a structured mesh."""
+        i = np.tile(np.arange(mesh.nx + 1), mesh.ny + 1)
+        j = np.repeat(np.arange(mesh.ny + 1), mesh.nx + 1)
+        return cls(points=mesh.points, quads=mesh.quads[moving], fixed_nodes=fixed_nodes,
+                   stiffening=stiffening, grid=np.column_stack([2 * i, 2 * j]))
+
+
+@dataclass
+class MoveReport:
+    """What happened during a move; every field is JSON-friendly."""
+
+    mover: str
+    converged: bool = False
+    increments: int = 0
+    newton_iterations: int = 0
+    linear_solves: int = 0
+    factorizations: int = 0
+    cutbacks: int = 0
+    residual_history: list = field(default_factory=list)   # per increment: list of norms
+    quality: list = field(default_factory=list)            # per increment: summary dict
+    wall_time_s: float = 0.0
+    message: str = ""
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class MoveResult:
+    displacement: np.ndarray      # (n, 2) [m]
+    report: MoveReport
+    cell_data: dict = field(default_factory=dict)   # per moving quad, e.g. the spring diagonals
+
+
+def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
+    """Quality summary of the moving quads at displacement ``x`` ``(n, 2)``."""
+    s = quality.summary(problem.points, problem.points + x, problem.quads)
+    return {"load": float(load), "min_skewness": s.min_skewness,
+            "min_area_change": s.min_area_change, "max_area_change": s.max_area_change,
+            "n_inverted": s.n_inverted, "worst_element": s.min_skewness_element,
+            "worst_location": list(s.min_skewness_location)}
+
+
+class Mover(ABC):
+    """Base class of mesh movers: ``Params`` record, ``move``, and adjoint hooks."""
+
+    name: ClassVar[str]
+    Params: ClassVar[type]
+
+    def __init__(self, params):
+        self.params = params
+
+    @abstractmethod
+    def move(self, problem: MotionProblem, prescribed: np.ndarray,
+             progress: Progress | None = None) -> MoveResult:
+        """Displacement ``(n, 2)`` with the fixed nodes at ``prescribed`` and a report."""
+
+    # helpers ---------------------------------------------------------------
+    def _solver(self, problem: MotionProblem, K, report: MoveReport):
+        report.factorizations += 1
+        kind = getattr(self.params, "linear_solver", "direct")
+        near_null = rigid_body_modes(problem.points) if kind == "amg" else None
+        return make_solver(K, kind, coords=problem.dof_grid(), near_null=near_null)
+
+    @staticmethod
+    def _start(problem: MotionProblem, prescribed: np.ndarray):
+        prescribed = np.asarray(prescribed, dtype=float)
+        if prescribed.shape != (problem.n_nodes, 2):
+            raise ValueError(f"prescribed displacement must be ({problem.n_nodes}, 2)")
+        if not np.all(np.isfinite(prescribed)):
+            raise NumericalError("prescribed displacement contains NaN or inf", {})
+        target = np.zeros(2 * problem.n_nodes)
+        fixed = problem.fixed_dofs
+        target[fixed] = prescribed.reshape(-1)[fixed]
+        return target, time.perf_counter()
+
+    @staticmethod
+    def _fail(report: MoveReport, problem: MotionProblem, x: np.ndarray, message: str, t0: float):
+        report.converged = False
+        report.message = message
+        report.wall_time_s = time.perf_counter() - t0
+        diagnostic = {"report": report.as_dict(),
+                      "quality": quality_record(problem, x.reshape(-1, 2), np.nan)}
+        log.error("%s mover failed: %s", report.mover, message)
+        raise NumericalError(f"{report.mover} mover: {message}", diagnostic, state=x.reshape(-1, 2))
+
+    @staticmethod
+    def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float) -> MoveResult:
+        report.wall_time_s = time.perf_counter() - t0
+        last = report.quality[-1] if report.quality else quality_record(problem, x.reshape(-1, 2), 1.0)
+        if last["n_inverted"]:
+            report.converged = False
+            report.message = (f"{last['n_inverted']} inverted element(s); worst element "
+                              f"{last['worst_element']} at {last['worst_location']}")
+            raise NumericalError(f"{report.mover} mover: {report.message}",
+                                 {"report": report.as_dict(), "quality": last},
+                                 state=x.reshape(-1, 2))
+        report.converged = True
+        return MoveResult(x.reshape(-1, 2), report)

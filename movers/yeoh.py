@@ -1,0 +1,181 @@
+"""Yeoh hyperelastic mover: total Lagrangian, Newton with load increments.
+
+Unknown: the mesh displacement ``x`` (2n). Residual (internal forces of the
+reference mesh, 2x2 Gauss points):
+
+    R_a,i(x) = sum_g w_g det J0_g P_iJ dN_a/dX_J,   P = F S,   F = I + grad0 x,
+
+with ``S`` from :mod:`movers.yeoh_material` (``A20`` times the quad's
+stiffening factor). The tangent is the consistent one,
+``K = sum_g w det J0 (B_L^T D B_L + grad0 N^T S grad0 N (x) I)``.
+
+The prescribed motion is applied as ``lambda u`` with ``lambda`` stepping from
+0 to 1. Each increment starts with a tangent predictor (the boundary step and
+the free nodes' linear response), then Newton corrections with a
+backtracking line search on ``|R_free|`` that also refuses any element whose
+``det F`` or corner Jacobian is not positive. An increment that fails
+(inversion, no decrease, iteration limit) is cut in half; the mover stops
+with a diagnostic when the increment falls below ``min_increment`` or after
+``max_cutbacks`` cuts. Tangent systems are solved by a
+:class:`~tofsi.linalg.RecyclingSolver` (factorize rarely, GMRES in between).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from movers.base import MotionProblem, Mover, MoveReport, MoveResult, quality_record
+from movers.yeoh_material import stress_and_tangent
+from tofsi import quality
+from tofsi.config import option
+from tofsi.errors import NumericalError
+from tofsi.fem.assembly import assemble_vector, weighted_gram
+from tofsi.fem.geometry import physical_gradients
+from tofsi.fem.quadrature import gauss_square
+from tofsi.linalg import RecyclingSolver
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class YeohParams:
+    A10: float = option(1.0, gt=0, doc="first Yeoh coefficient [Pa]")
+    A20: float = option(1e3, ge=0, doc="second Yeoh coefficient [Pa] (stiffened per layer)")
+    A30: float = option(0.0, ge=0, doc="third Yeoh coefficient [Pa]")
+    kappa: float = option(1.0, gt=0, doc="bulk coefficient [Pa]")
+    increments: int = option(4, ge=1, le=100_000, doc="initial number of load increments")
+    newton_tol: float = option(1e-10, gt=0, lt=1, doc="|R_free| relative to the force scale")
+    max_newton: int = option(25, ge=1, le=1000, doc="Newton iterations per increment")
+    min_increment: float = option(1e-4, gt=0, lt=1, doc="smallest load increment before failing")
+    max_cutbacks: int = option(40, ge=0, le=10_000, doc="increment cuts before failing")
+    linear_solver: str = option("direct", choices=("direct", "amg"), doc="sparse LU or AMG-CG")
+
+
+class YeohKernel:
+    """Batched residual and tangent of the Yeoh mesh on a fixed reference mesh."""
+
+    def __init__(self, problem: MotionProblem, params: YeohParams, stiffening=None):
+        points, weights = gauss_square(2)
+        Xe = problem.points[problem.quads]
+        self.grad0, det0 = physical_gradients(Xe, 1, points)      # (E, G, 4, 2), (E, G)
+        self.wdet = det0 * weights
+        self.problem, self.p = problem, params
+        factors = problem.stiffening if stiffening is None else stiffening
+        self.A20 = (params.A20 * factors)[:, None]                 # (E, 1)
+
+    def deformation_gradient(self, x: np.ndarray) -> np.ndarray:
+        ue = x.reshape(-1, 2)[self.problem.quads]                   # (E, 4, 2)
+        return np.eye(2) + np.einsum("eai,egaJ->egiJ", ue, self.grad0)
+
+    def evaluate(self, x: np.ndarray, tangent: bool = True):
+        """Element residuals ``(E, 8)``, tangents ``(E, 8, 8)`` (or None), min det F ``(E,)``."""
+        p = self.p
+        F = self.deformation_gradient(x)
+        detF = F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
+        S, D = stress_and_tangent(F, p.A10, self.A20, p.A30, p.kappa)
+        P = np.einsum("egiK,egKJ->egiJ", F, S)
+        Re = np.einsum("egiJ,egaJ,eg->eai", P, self.grad0, self.wdet).reshape(-1, 8)
+        if not tangent:
+            return Re, None, detF.min(axis=1)
+        g = self.grad0
+        BL = np.empty(g.shape[:2] + (3, 8), dtype=F.dtype)
+        for i in range(2):                  # dofs 2a + i
+            BL[..., 0, i::2] = F[..., i, 0, None] * g[..., 0]
+            BL[..., 1, i::2] = F[..., i, 1, None] * g[..., 1]
+            BL[..., 2, i::2] = F[..., i, 0, None] * g[..., 1] + F[..., i, 1, None] * g[..., 0]
+        Ke = weighted_gram(BL, D @ BL, self.wdet)
+        Gab = weighted_gram(g.transpose(0, 1, 3, 2), S @ g.transpose(0, 1, 3, 2), self.wdet)
+        Ke[:, 0::2, 0::2] += Gab
+        Ke[:, 1::2, 1::2] += Gab
+        return Re, Ke, detF.min(axis=1)
+
+
+class YeohMover(Mover):
+    """Yeoh hyperelastic mesh, Newton-Raphson with load stepping and cutback."""
+
+    name = "yeoh"
+    Params = YeohParams
+
+    def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
+        target, t0 = self._start(problem, prescribed)
+        report = MoveReport(mover=self.name)
+        p = self.params
+        kernel = YeohKernel(problem, p)
+        bc = problem.dirichlet()
+        solver = RecyclingSolver(lambda K: self._solver(problem, K, report))
+        x = np.zeros_like(target)
+        load, step = 0.0, 1.0 / p.increments
+        while load < 1.0 - 1e-14:
+            step = min(step, 1.0 - load)
+            x_new, history, why = self._increment(kernel, bc, solver, x, step * target, report)
+            report.residual_history.append(history)
+            if x_new is None:
+                report.cutbacks += 1
+                step *= 0.5
+                log.info("yeoh: increment at load %.4g failed (%s); cut to %.3g", load, why, step)
+                if step < p.min_increment or report.cutbacks > p.max_cutbacks:
+                    self._fail(report, problem, x, f"no convergence at load {load:.4g} after "
+                               f"{report.cutbacks} cutbacks (last: {why})", t0)
+                continue
+            x, load = x_new, load + step
+            report.increments += 1
+            record = quality_record(problem, x.reshape(-1, 2), load)
+            report.quality.append(record)
+            if progress:
+                progress(report.increments, p.increments, record)
+            if len(history) <= 4:                # easy increment: take a longer next one
+                step *= 1.5
+        report.factorizations = solver.factorizations
+        return self._finish(report, problem, x, t0)
+
+    def _valid(self, kernel: YeohKernel, x: np.ndarray, det_min: np.ndarray) -> bool:
+        if np.any(det_min <= 0.0):
+            return False
+        P = kernel.problem
+        return not np.any(quality.inverted(P.points + x.reshape(-1, 2), P.quads))
+
+    def _increment(self, kernel: YeohKernel, bc, solver: RecyclingSolver, x0: np.ndarray,
+                   boundary_step: np.ndarray, report: MoveReport):
+        """Newton solve of one load increment; returns (x or None, |R_free| history, reason)."""
+        p, dofs, n = self.params, kernel.problem.dofs, x0.size
+        Re, Ke, _ = kernel.evaluate(x0)
+        K = bc.matrix(Ke)
+        jump = assemble_vector(dofs, np.einsum("eab,eb->ea", Ke, boundary_step[dofs]), n)
+        r0 = assemble_vector(dofs, Re, n)
+        rhs = bc.homogenize(-(r0 + jump))
+        rhs[bc.fixed] = boundary_step[bc.fixed]
+        x = x0 + solver.solve(K, rhs)                      # tangent predictor
+        report.linear_solves += 1
+        scale = max(np.linalg.norm(bc.homogenize(jump)), np.linalg.norm(r0[bc.fixed]),
+                    1e-300)
+        history: list[float] = []
+        Re, Ke, det_min = kernel.evaluate(x)
+        if not self._valid(kernel, x, det_min):
+            return None, history, "predictor inverts an element"
+        for it in range(p.max_newton + 1):
+            r = bc.homogenize(assemble_vector(dofs, Re, n))
+            norm = float(np.linalg.norm(r))
+            history.append(norm)
+            if not np.isfinite(norm):
+                return None, history, "non-finite residual"
+            if norm <= p.newton_tol * max(scale, np.linalg.norm(assemble_vector(dofs, Re, n))):
+                return x, history, ""
+            if it == p.max_newton:
+                return None, history, f"{p.max_newton} Newton iterations"
+            dx = solver.solve(bc.matrix(Ke), -r)
+            report.linear_solves += 1
+            report.newton_iterations += 1
+            for alpha in 0.5 ** np.arange(7):                # backtracking line search
+                trial = x + alpha * dx
+                Re_t, Ke_t, det_t = kernel.evaluate(trial)
+                if self._valid(kernel, trial, det_t):
+                    r_t = np.linalg.norm(bc.homogenize(assemble_vector(dofs, Re_t, n)))
+                    if r_t < (1.0 - 1e-4 * alpha) * norm:
+                        break
+            else:
+                return None, history, "line search found no decrease"
+            x, Re, Ke = trial, Re_t, Ke_t
+        return None, history, "unreachable"
