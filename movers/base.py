@@ -20,6 +20,7 @@ import logging
 import time
 from abc import ABC, abstractmethod
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from typing import Callable, ClassVar
 
 import numpy as np
@@ -28,7 +29,7 @@ from tofsi import quality
 from tofsi.errors import NumericalError
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
-from tofsi.linalg import make_solver, rigid_body_modes
+from tofsi.linalg import RecyclingSolver, make_solver, nested_dissection, rigid_body_modes
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +86,11 @@ class MotionProblem:
         """Grid positions of the dofs (both components of a node share one)."""
         return None if self.grid is None else np.repeat(self.grid, 2, axis=0)
 
+    @cached_property
+    def ordering(self) -> np.ndarray | None:
+        """Nested-dissection permutation of the dofs, computed once per problem."""
+        return None if self.grid is None else nested_dissection(self.dof_grid())
+
     @classmethod
     def from_mesh(cls, mesh, moving: np.ndarray, fixed_nodes: np.ndarray,
                   stiffening: np.ndarray | None = None) -> "MotionProblem":
@@ -105,6 +111,7 @@ class MoveReport:
     newton_iterations: int = 0
     linear_solves: int = 0
     factorizations: int = 0
+    krylov_iterations: int = 0
     cutbacks: int = 0
     residual_history: list = field(default_factory=list)   # per increment: list of norms
     quality: list = field(default_factory=list)            # per increment: summary dict
@@ -120,6 +127,8 @@ class MoveResult:
     displacement: np.ndarray      # (n, 2) [m]
     report: MoveReport
     cell_data: dict = field(default_factory=dict)   # per moving quad, e.g. the spring diagonals
+    trajectory: list | None = None                  # [x_0, ..., x_N] of path-dependent movers
+    solver: object = None                           # the forward solver, reused by the adjoint
 
 
 def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
@@ -145,12 +154,24 @@ class Mover(ABC):
              progress: Progress | None = None) -> MoveResult:
         """Displacement ``(n, 2)`` with the fixed nodes at ``prescribed`` and a report."""
 
+    @abstractmethod
+    def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
+        """Vector-Jacobian product of the map (prescribed, stiffening) -> displacement.
+
+        xbar : (n, 2) adjoint of the displacement
+        returns ``(prescribed_bar (n, 2), stiffening_bar (Em,))``; ``prescribed_bar``
+        is zero on free nodes.
+        """
+
     # helpers ---------------------------------------------------------------
-    def _solver(self, problem: MotionProblem, K, report: MoveReport):
-        report.factorizations += 1
+    def _solver(self, problem: MotionProblem) -> RecyclingSolver:
+        """A solver for the mover's sequence of tangent/stiffness systems."""
         kind = getattr(self.params, "linear_solver", "direct")
         near_null = rigid_body_modes(problem.points) if kind == "amg" else None
-        return make_solver(K, kind, coords=problem.dof_grid(), near_null=near_null)
+        perm = problem.ordering if kind == "direct" else None
+        tol = getattr(self.params, "linear_tol", 1e-10)
+        return RecyclingSolver(lambda K: make_solver(K, kind, near_null=near_null, perm=perm, tol=tol),
+                               rtol=tol)
 
     @staticmethod
     def _start(problem: MotionProblem, prescribed: np.ndarray):
@@ -175,8 +196,12 @@ class Mover(ABC):
         raise NumericalError(f"{report.mover} mover: {message}", diagnostic, state=x.reshape(-1, 2))
 
     @staticmethod
-    def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float) -> MoveResult:
+    def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float,
+                solver: RecyclingSolver | None = None, trajectory=None) -> MoveResult:
         report.wall_time_s = time.perf_counter() - t0
+        if solver is not None:
+            report.factorizations = solver.factorizations
+            report.krylov_iterations = solver.krylov_iterations
         last = report.quality[-1] if report.quality else quality_record(problem, x.reshape(-1, 2), 1.0)
         if last["n_inverted"]:
             report.converged = False
@@ -186,4 +211,4 @@ class Mover(ABC):
                                  {"report": report.as_dict(), "quality": last},
                                  state=x.reshape(-1, 2))
         report.converged = True
-        return MoveResult(x.reshape(-1, 2), report)
+        return MoveResult(x.reshape(-1, 2), report, trajectory=trajectory, solver=solver)

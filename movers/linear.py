@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult
-from movers.incremental import run_increments
+from movers.incremental import increments_vjp, run_increments
 from tofsi.config import option
 from tofsi.errors import NumericalError
-from tofsi.physics.elasticity import element_stiffness, plane_strain_matrix
+from tofsi.physics.elasticity import element_stiffness, lame
 
 
 @dataclass(frozen=True)
@@ -27,6 +27,7 @@ class LinearParams:
     chi: float = option(0.0, ge=0, le=10, doc="Jacobian stiffening power (0: none)")
     increments: int = option(1, ge=1, le=100_000, doc="increments on the updated mesh")
     linear_solver: str = option("direct", choices=("direct", "amg"), doc="sparse LU or AMG-CG")
+    linear_tol: float = option(1e-10, gt=0, lt=1e-3, doc="relative tolerance of recycled iterative solves")
 
 
 class LinearElasticMover(Mover):
@@ -35,18 +36,25 @@ class LinearElasticMover(Mover):
     name = "linear"
     Params = LinearParams
 
-    def element_matrices(self, stiffening: np.ndarray):
-        D = plane_strain_matrix(1.0, self.params.poisson_ratio)
+    def element_matrices(self):
+        """Unscaled element stiffness of the current corners (complex-safe)."""
+        lam, mu = lame(1.0, self.params.poisson_ratio)
         chi = self.params.chi
-        return lambda Xe: element_stiffness(Xe, D, stiffening, chi)
+        return lambda Xe: element_stiffness(Xe, lam, mu, chi=chi)
 
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
+        solver = self._solver(problem)
         try:
-            x = run_increments(problem, target, self.params.increments,
-                               self.element_matrices(problem.stiffening),
-                               lambda K: self._solver(problem, K, report), report, progress)
+            x, states = run_increments(problem, target, self.params.increments,
+                                       self.element_matrices(), solver, report, progress)
         except NumericalError as err:
             self._fail(report, problem, np.zeros_like(target), str(err), t0)
-        return self._finish(report, problem, x, t0)
+        return self._finish(report, problem, x, t0, solver, trajectory=states)
+
+    def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
+        """Reverse sweep; with one increment this is the adjoint of ``K x = 0, x_p = u_p``."""
+        target_bar, f_bar = increments_vjp(problem, result.trajectory, self.element_matrices(),
+                                           result.solver, xbar)
+        return target_bar.reshape(-1, 2), f_bar

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult
-from movers.incremental import increment, run_increments
+from movers.incremental import increment, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, quad_stiffness
 from tofsi import quality
 from tofsi.config import option
@@ -33,6 +33,7 @@ class SpringParams:
     increments: int = option(30, ge=1, le=100_000, doc="equal increments of the motion")
     torsion_scale: float = option(1.0, gt=0, doc="torsional stiffness scale TSC")
     linear_solver: str = option("direct", choices=("direct", "amg"), doc="sparse LU or AMG-CG")
+    linear_tol: float = option(1e-10, gt=0, lt=1e-3, doc="relative tolerance of recycled iterative solves")
 
 
 class SpringMover(Mover):
@@ -41,11 +42,12 @@ class SpringMover(Mover):
     name = "spring"
     Params = SpringParams
 
-    def element_matrices(self, codes: np.ndarray, stiffening: np.ndarray):
+    def element_matrices(self, codes: np.ndarray):
+        """Unscaled quad matrices for the diagonal codes (complex-safe)."""
         tsc = self.params.torsion_scale
-        return lambda Xe: quad_stiffness(Xe, codes, tsc) * stiffening[:, None, None]
+        return lambda Xe: quad_stiffness(Xe, codes, tsc)
 
-    def choose_diagonals(self, problem: MotionProblem, target: np.ndarray,
+    def choose_diagonals(self, problem: MotionProblem, target: np.ndarray, solver,
                          report: MoveReport) -> np.ndarray:
         """Per-quad diagonal codes from two trial increments with opposite diagonals."""
         bc = problem.dirichlet()
@@ -54,25 +56,31 @@ class SpringMover(Mover):
         skew = []
         for code in (0, 1):
             codes = np.full(len(problem.quads), code)
-            x = increment(problem, bc, self.element_matrices(codes, problem.stiffening), x0, step,
-                          lambda K: self._solver(problem, K, report), report)
-            skew.append(quality.skewness(problem.points + x.reshape(-1, 2), problem.quads))
+            dx = increment(problem, bc, self.element_matrices(codes), x0, step, solver, report)
+            skew.append(quality.skewness(problem.points + dx.reshape(-1, 2), problem.quads))
         return np.where(skew[1] > skew[0], 1, 0)
 
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
+        solver = self._solver(problem)
         choice = self.params.diagonals
         if choice == "selective":
-            codes = self.choose_diagonals(problem, target, report)
+            codes = self.choose_diagonals(problem, target, solver, report)
         else:
             codes = np.full(len(problem.quads), DIAGONALS.index(choice))
         try:
-            x = run_increments(problem, target, self.params.increments,
-                               self.element_matrices(codes, problem.stiffening),
-                               lambda K: self._solver(problem, K, report), report, progress)
+            x, states = run_increments(problem, target, self.params.increments,
+                                       self.element_matrices(codes), solver, report, progress)
         except NumericalError as err:
             self._fail(report, problem, np.zeros_like(target), str(err), t0)
-        result = self._finish(report, problem, x, t0)
+        result = self._finish(report, problem, x, t0, solver, trajectory=states)
         result.cell_data["diagonal"] = codes
         return result
+
+    def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
+        """Reverse sweep through the increments (the diagonal choice is held fixed)."""
+        target_bar, f_bar = increments_vjp(problem, result.trajectory,
+                                           self.element_matrices(result.cell_data["diagonal"]),
+                                           result.solver, xbar)
+        return target_bar.reshape(-1, 2), f_bar

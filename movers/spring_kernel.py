@@ -69,6 +69,10 @@ def triangle_stiffness(P: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
     return K
 
 
+_SELECT = {tri: np.eye(8)[np.ravel([(2 * a, 2 * a + 1) for a in tri])]
+           for name in TRIANGLES for tri in TRIANGLES[name]}
+
+
 def quad_stiffness(Xe: np.ndarray, diagonal: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
     """Spring stiffness ``(E, 8, 8)`` of quads ``Xe`` ``(E, 4, 2)``.
 
@@ -82,8 +86,10 @@ def quad_stiffness(Xe: np.ndarray, diagonal: np.ndarray, torsion_scale: float = 
         use = weight[code] > 0
         if not use.any():
             continue
+        Xu = Xe[use]
+        Ku = 0.0
         for tri in TRIANGLES[name]:
-            dofs = np.ravel([(2 * a, 2 * a + 1) for a in tri])
-            Kt = triangle_stiffness(Xe[use][:, tri, :], torsion_scale)
-            K[np.ix_(np.flatnonzero(use), dofs, dofs)] += weight[code][use, None, None] * Kt
+            S = _SELECT[tri]                                   # (6, 8) triangle dofs -> quad dofs
+            Ku = Ku + np.matmul(np.matmul(S.T, triangle_stiffness(Xu[:, tri, :], torsion_scale)), S)
+        K[use] += weight[code][use, None, None] * Ku
     return K

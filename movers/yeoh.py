@@ -12,8 +12,11 @@ stiffening factor). The tangent is the consistent one,
 The prescribed motion is applied as ``lambda u`` with ``lambda`` stepping from
 0 to 1. Each increment starts with a tangent predictor (the boundary step and
 the free nodes' linear response), then Newton corrections with a
-backtracking line search on ``|R_free|`` that also refuses any element whose
-``det F`` or corner Jacobian is not positive. An increment that fails
+line search on the energy's slope along the step, ``g(alpha) = dx . R(x + alpha dx)``
+(Crisfield's secant search: the step may be shortened or, when the energy is
+nearly quartic as with a large A20, extended up to 4x), falling back to
+halving; every trial refuses an element whose ``det F`` or corner Jacobian
+is not positive, and an accepted step must reduce ``|R_free|``. An increment that fails
 (inversion, no decrease, iteration limit) is cut in half; the mover stops
 with a diagnostic when the increment falls below ``min_increment`` or after
 ``max_cutbacks`` cuts. Tangent systems are solved by a
@@ -28,14 +31,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult, quality_record
-from movers.yeoh_material import stress_and_tangent
+from movers.incremental import COMPLEX_STEP, transposed_solve
+from movers.yeoh_material import stress, stress_and_tangent
 from tofsi import quality
 from tofsi.config import option
 from tofsi.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector, weighted_gram
 from tofsi.fem.geometry import physical_gradients
 from tofsi.fem.quadrature import gauss_square
-from tofsi.linalg import RecyclingSolver
+from tofsi.linalg import RecyclingSolver  # noqa: F401  (type of the solver argument)
 
 log = logging.getLogger(__name__)
 
@@ -46,12 +50,14 @@ class YeohParams:
     A20: float = option(1e3, ge=0, doc="second Yeoh coefficient [Pa] (stiffened per layer)")
     A30: float = option(0.0, ge=0, doc="third Yeoh coefficient [Pa]")
     kappa: float = option(1.0, gt=0, doc="bulk coefficient [Pa]")
-    increments: int = option(4, ge=1, le=100_000, doc="initial number of load increments")
+    increments: int = option(2, ge=1, le=100_000, doc="initial number of load increments "
+                             "(the result does not depend on it; more make Newton easier)")
     newton_tol: float = option(1e-10, gt=0, lt=1, doc="|R_free| relative to the force scale")
     max_newton: int = option(25, ge=1, le=1000, doc="Newton iterations per increment")
     min_increment: float = option(1e-4, gt=0, lt=1, doc="smallest load increment before failing")
     max_cutbacks: int = option(40, ge=0, le=10_000, doc="increment cuts before failing")
     linear_solver: str = option("direct", choices=("direct", "amg"), doc="sparse LU or AMG-CG")
+    linear_tol: float = option(1e-10, gt=0, lt=1e-3, doc="relative tolerance of recycled iterative solves")
 
 
 class YeohKernel:
@@ -67,17 +73,24 @@ class YeohKernel:
         self.A20 = (params.A20 * factors)[:, None]                 # (E, 1)
 
     def deformation_gradient(self, x: np.ndarray) -> np.ndarray:
+        """``F = I + sum_a u_a (x) grad0 N_a`` ``(E, G, 2, 2)``."""
         ue = x.reshape(-1, 2)[self.problem.quads]                   # (E, 4, 2)
-        return np.eye(2) + np.einsum("eai,egaJ->egiJ", ue, self.grad0)
+        return np.eye(2) + np.matmul(ue.transpose(0, 2, 1)[:, None], self.grad0)
 
     def evaluate(self, x: np.ndarray, tangent: bool = True):
         """Element residuals ``(E, 8)``, tangents ``(E, 8, 8)`` (or None), min det F ``(E,)``."""
         p = self.p
         F = self.deformation_gradient(x)
         detF = F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
-        S, D = stress_and_tangent(F, p.A10, self.A20, p.A30, p.kappa)
-        P = np.einsum("egiK,egKJ->egiJ", F, S)
-        Re = np.einsum("egiJ,egaJ,eg->eai", P, self.grad0, self.wdet).reshape(-1, 8)
+        if np.any(detF <= 0.0):                  # inverted: the energy is undefined there
+            return None, None, detF.min(axis=1)
+        if not tangent:
+            S = stress(F, p.A10, self.A20, p.A30, p.kappa)
+        else:
+            S, D = stress_and_tangent(F, p.A10, self.A20, p.A30, p.kappa)
+        P = np.matmul(F, S)                                         # first Piola-Kirchhoff
+        Re = (np.matmul(self.grad0, np.swapaxes(P, -1, -2)) * self.wdet[..., None, None]).sum(axis=1)
+        Re = Re.reshape(-1, 8)
         if not tangent:
             return Re, None, detF.min(axis=1)
         g = self.grad0
@@ -105,12 +118,14 @@ class YeohMover(Mover):
         p = self.params
         kernel = YeohKernel(problem, p)
         bc = problem.dirichlet()
-        solver = RecyclingSolver(lambda K: self._solver(problem, K, report))
+        solver = self._solver(problem)
         x = np.zeros_like(target)
+        state = kernel.evaluate(x)[:2]                   # element residuals and tangents at x
         load, step = 0.0, 1.0 / p.increments
         while load < 1.0 - 1e-14:
             step = min(step, 1.0 - load)
-            x_new, history, why = self._increment(kernel, bc, solver, x, step * target, report)
+            x_new, state_new, history, why = self._increment(kernel, bc, solver, x, state,
+                                                             step * target, report)
             report.residual_history.append(history)
             if x_new is None:
                 report.cutbacks += 1
@@ -120,7 +135,7 @@ class YeohMover(Mover):
                     self._fail(report, problem, x, f"no convergence at load {load:.4g} after "
                                f"{report.cutbacks} cutbacks (last: {why})", t0)
                 continue
-            x, load = x_new, load + step
+            x, state, load = x_new, state_new, load + step
             report.increments += 1
             record = quality_record(problem, x.reshape(-1, 2), load)
             report.quality.append(record)
@@ -128,8 +143,70 @@ class YeohMover(Mover):
                 progress(report.increments, p.increments, record)
             if len(history) <= 4:                # easy increment: take a longer next one
                 step *= 1.5
-        report.factorizations = solver.factorizations
-        return self._finish(report, problem, x, t0)
+        return self._finish(report, problem, x, t0, solver)
+
+    def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
+        """Implicit-function adjoint at the equilibrium: one transposed tangent solve.
+
+        ``R_f(x) = 0, x_p = u_p``: ``K_ff^T lam_f = xbar_f``, ``u_pbar = xbar_p - K_fp^T lam_f``,
+        ``f_bar_e = -lam_e . dR_e/df_e`` (complex step in the stiffening factor).
+        """
+        x = np.asarray(result.displacement, dtype=float).reshape(-1)
+        kernel = YeohKernel(problem, self.params)
+        _, Ke, _ = kernel.evaluate(x)
+        bc, dofs = problem.dirichlet(), problem.dofs
+        solver = result.solver or self._solver(problem)
+        lam, lam_p = transposed_solve(bc, Ke, dofs, np.asarray(xbar, float).reshape(-1), solver)
+        h = COMPLEX_STEP
+        dR_df = YeohKernel(problem, self.params, problem.stiffening + 1j * h).evaluate(
+            x, tangent=False)[0].imag / h
+        return lam_p.reshape(-1, 2), -np.einsum("ea,ea->e", lam[dofs], dR_df)
+
+    @staticmethod
+    def _forcing(history: list[float], target: float) -> float:
+        """Relative tolerance of the next Newton solve (Eisenstat-Walker choice 2).
+
+        Loose while the residual is large, ``0.9 (r_k / r_{k-1})^2`` as it
+        converges, never tighter than the final tolerance needs.
+        """
+        eta = 0.1 if len(history) < 2 else min(0.1, 0.9 * (history[-1] / history[-2]) ** 2)
+        return max(eta, 0.1 * target / history[-1])
+
+    def _line_search(self, kernel: YeohKernel, bc, x, dx, r, norm):
+        """Step length along ``dx``: returns (x_new, Re, Ke or None) or None.
+
+        ``g(alpha) = dx . R_free(x + alpha dx)`` is the slope of the energy
+        along the step; ``g(0) = dx . r < 0``. Accept the full step when the
+        slope has dropped to half or less; otherwise move to the secant root
+        ``alpha g0 / (g0 - g(alpha))`` (clipped to [0.1, 4]) once, then halve.
+        """
+        dofs, n = kernel.problem.dofs, x.size
+
+        def trial(alpha, tangent):
+            xt = x + alpha * dx
+            Re_t, Ke_t, det_t = kernel.evaluate(xt, tangent)
+            if Re_t is None or not self._valid(kernel, xt, det_t):
+                return xt, None, None, None, None
+            rt = bc.homogenize(assemble_vector(dofs, Re_t, n))
+            return xt, Re_t, Ke_t, float(dx @ rt), float(np.linalg.norm(rt))
+
+        g0 = float(dx @ r)
+        alphas = [1.0]
+        xt, Re_t, Ke_t, g1, n1 = trial(1.0, True)
+        if g1 is not None and n1 < norm and (g0 >= 0 or abs(g1) <= 0.1 * abs(g0)):
+            return xt, Re_t, Ke_t
+        if g1 is not None and g0 < 0 and g1 != g0:
+            alphas.append(float(np.clip(g0 / (g0 - g1), 0.1, 4.0)))
+        alphas += [0.5 ** k for k in range(1, 7)]
+        best = (xt, Re_t, Ke_t) if g1 is not None and n1 < (1 - 1e-4) * norm else None
+        for alpha in alphas[1:]:
+            xa, Re_a, _, ga, na = trial(alpha, False)
+            if ga is not None and na < (1 - 1e-4 * min(alpha, 1.0)) * norm and \
+                    (best is None or na < np.linalg.norm(bc.homogenize(assemble_vector(dofs, best[1], n)))):
+                return xa, Re_a, None
+            if best is not None:
+                return best
+        return best
 
     def _valid(self, kernel: YeohKernel, x: np.ndarray, det_min: np.ndarray) -> bool:
         if np.any(det_min <= 0.0):
@@ -137,45 +214,48 @@ class YeohMover(Mover):
         P = kernel.problem
         return not np.any(quality.inverted(P.points + x.reshape(-1, 2), P.quads))
 
-    def _increment(self, kernel: YeohKernel, bc, solver: RecyclingSolver, x0: np.ndarray,
+    def _increment(self, kernel: YeohKernel, bc, solver: RecyclingSolver, x0: np.ndarray, state0,
                    boundary_step: np.ndarray, report: MoveReport):
-        """Newton solve of one load increment; returns (x or None, |R_free| history, reason)."""
+        """Newton solve of one load increment from the converged ``x0`` with element
+        residuals and tangents ``state0``; returns (x or None, its (Re, Ke),
+        |R_free| history, reason)."""
         p, dofs, n = self.params, kernel.problem.dofs, x0.size
-        Re, Ke, _ = kernel.evaluate(x0)
+        Re, Ke = state0
         K = bc.matrix(Ke)
         jump = assemble_vector(dofs, np.einsum("eab,eb->ea", Ke, boundary_step[dofs]), n)
         r0 = assemble_vector(dofs, Re, n)
         rhs = bc.homogenize(-(r0 + jump))
         rhs[bc.fixed] = boundary_step[bc.fixed]
-        x = x0 + solver.solve(K, rhs)                      # tangent predictor
+        delta = solver.solve(K, rhs, rtol=1e-3)            # tangent predictor (loose)
+        delta[bc.fixed] = boundary_step[bc.fixed]
+        x = x0 + delta
         report.linear_solves += 1
         scale = max(np.linalg.norm(bc.homogenize(jump)), np.linalg.norm(r0[bc.fixed]),
                     1e-300)
         history: list[float] = []
         Re, Ke, det_min = kernel.evaluate(x)
         if not self._valid(kernel, x, det_min):
-            return None, history, "predictor inverts an element"
+            return None, None, history, "predictor inverts an element"
         for it in range(p.max_newton + 1):
             r = bc.homogenize(assemble_vector(dofs, Re, n))
             norm = float(np.linalg.norm(r))
             history.append(norm)
             if not np.isfinite(norm):
-                return None, history, "non-finite residual"
-            if norm <= p.newton_tol * max(scale, np.linalg.norm(assemble_vector(dofs, Re, n))):
-                return x, history, ""
+                return None, None, history, "non-finite residual"
+            target = p.newton_tol * max(scale, np.linalg.norm(assemble_vector(dofs, Re, n)))
+            if norm <= target:
+                return x, (Re, Ke), history, ""
             if it == p.max_newton:
-                return None, history, f"{p.max_newton} Newton iterations"
-            dx = solver.solve(bc.matrix(Ke), -r)
+                return None, None, history, f"{p.max_newton} Newton iterations"
+            dx = solver.solve(bc.matrix(Ke), -r, rtol=self._forcing(history, target))
+            dx[bc.fixed] = 0.0
             report.linear_solves += 1
             report.newton_iterations += 1
-            for alpha in 0.5 ** np.arange(7):                # backtracking line search
-                trial = x + alpha * dx
-                Re_t, Ke_t, det_t = kernel.evaluate(trial)
-                if self._valid(kernel, trial, det_t):
-                    r_t = np.linalg.norm(bc.homogenize(assemble_vector(dofs, Re_t, n)))
-                    if r_t < (1.0 - 1e-4 * alpha) * norm:
-                        break
-            else:
-                return None, history, "line search found no decrease"
+            found = self._line_search(kernel, bc, x, dx, r, norm)
+            if found is None:
+                return None, None, history, "line search found no decrease"
+            trial, Re_t, Ke_t = found
+            if Ke_t is None:                                  # not the full step: tangent now
+                Re_t, Ke_t, _ = kernel.evaluate(trial)
             x, Re, Ke = trial, Re_t, Ke_t
-        return None, history, "unreachable"
+        return None, None, history, "unreachable"

@@ -26,11 +26,13 @@ from __future__ import annotations
 import numpy as np
 
 VOIGT = ((0, 0), (1, 1), (0, 1))
+_I = np.array([0, 1, 0])            # first index of Voigt entry p
+_J = np.array([0, 1, 1])            # second index
 
 
 def invariants(F: np.ndarray):
     """``C`` (..., 2, 2), ``C^-1``, ``I1``, ``I3`` of in-plane deformation gradients."""
-    C = np.einsum("...ki,...kj->...ij", F, F)
+    C = np.matmul(np.swapaxes(F, -1, -2), F)
     I3 = C[..., 0, 0] * C[..., 1, 1] - C[..., 0, 1] * C[..., 1, 0]
     Cinv = np.empty_like(C)
     Cinv[..., 0, 0] = C[..., 1, 1] / I3
@@ -49,32 +51,65 @@ def energy(F, A10, A20, A30, kappa):
     return A10 * t + A20 * t**2 + A30 * t**3 + kappa * (J - 1.0) ** 2
 
 
+def _voigt(A):
+    """Symmetric 2x2 tensors (..., 2, 2) as (..., 3) in the order (11, 22, 12)."""
+    return A[..., _I, _J]
+
+
+def _outer(a, b):
+    """``(A (x) B)`` in Voigt form from Voigt vectors ``a``, ``b`` (..., 3)."""
+    return a[..., :, None] * b[..., None, :]
+
+
+def _sym(v):
+    """``A_ik A_jl + A_il A_jk`` in Voigt form (..., 3, 3) for symmetric ``A = (a, b, c)``."""
+    a, b, c = v[..., 0], v[..., 1], v[..., 2]
+    out = np.empty(v.shape[:-1] + (3, 3), dtype=v.dtype)
+    out[..., 0, 0] = 2 * a * a
+    out[..., 1, 1] = 2 * b * b
+    out[..., 2, 2] = a * b + c * c
+    out[..., 0, 1] = out[..., 1, 0] = 2 * c * c
+    out[..., 0, 2] = out[..., 2, 0] = 2 * a * c
+    out[..., 1, 2] = out[..., 2, 1] = 2 * b * c
+    return out
+
+
+def stress(F, A10, A20, A30, kappa):
+    """Second Piola-Kirchhoff stress ``S`` (..., 2, 2) alone (no tangent)."""
+    _, Cinv, I1, I3 = invariants(F)
+    a = 1.0 / np.cbrt(I3)
+    J = np.sqrt(I3)
+    t = I1 * a - 3.0
+    W1 = A10 + 2.0 * A20 * t + 3.0 * A30 * t**2
+    eye = np.eye(2)
+    return (2.0 * W1 * a)[..., None, None] * (eye - (I1 / 3.0)[..., None, None] * Cinv) \
+        + (2.0 * kappa * (J - 1.0) * J)[..., None, None] * Cinv
+
+
 def stress_and_tangent(F, A10, A20, A30, kappa):
     """Second Piola-Kirchhoff stress ``S`` (..., 2, 2) and Voigt tangent ``D`` (..., 3, 3).
 
     ``A20`` may be an array broadcasting against ``F.shape[:-2]`` (stiffening).
+    The tangent is the formula of the module docstring with the coefficients
+    of each tensor product collected:
+    ``D = 4 W11 dJ1 (x) dJ1 - (4 W1 a / 3)(I (x) C^-1 + C^-1 (x) I) + c1 C^-1 (x) C^-1 + c2 Csym``.
     """
     C, Cinv, I1, I3 = invariants(F)
-    a = I3 ** (-1.0 / 3.0)
+    a = 1.0 / np.cbrt(I3)
     J = np.sqrt(I3)
     t = I1 * a - 3.0
     W1 = A10 + 2.0 * A20 * t + 3.0 * A30 * t**2
     W11 = 2.0 * A20 + 6.0 * A30 * t
-    eye = np.broadcast_to(np.eye(2), C.shape)
-    dJ1 = a[..., None, None] * (eye - (I1 / 3.0)[..., None, None] * Cinv)
-    S = 2.0 * W1[..., None, None] * dJ1 + (2.0 * kappa * (J - 1.0) * J)[..., None, None] * Cinv
-
-    def outer(A, B):                    # (A (x) B) in Voigt form
-        return np.stack([np.stack([A[..., i, j] * B[..., k, l] for (k, l) in VOIGT], -1)
-                         for (i, j) in VOIGT], -2)
-
-    def sym(A):                         # A_ik A_jl + A_il A_jk in Voigt form
-        return np.stack([np.stack([A[..., i, k] * A[..., j, l] + A[..., i, l] * A[..., j, k]
-                                   for (k, l) in VOIGT], -1) for (i, j) in VOIGT], -2)
-
-    CC, Csym = outer(Cinv, Cinv), sym(Cinv)
-    d2J1 = (-(a / 3.0)[..., None, None] * (outer(eye, Cinv) + outer(Cinv, eye))
-            + (a * I1 / 9.0)[..., None, None] * CC + (a * I1 / 6.0)[..., None, None] * Csym)
-    D = (4.0 * (W11[..., None, None] * outer(dJ1, dJ1) + W1[..., None, None] * d2J1)
-         + 2.0 * kappa * ((2.0 * J**2 - J)[..., None, None] * CC - (J**2 - J)[..., None, None] * Csym))
+    eye = np.array([1.0, 1.0, 0.0])
+    ci = _voigt(Cinv)                                                # (..., 3)
+    dJ1 = a[..., None] * (eye - (I1 / 3.0)[..., None] * ci)          # (..., 3)
+    s = 2.0 * W1[..., None] * dJ1 + (2.0 * kappa * (J - 1.0) * J)[..., None] * ci
+    S = s[..., [[0, 2], [2, 1]]]
+    c_cross = -4.0 * W1 * a / 3.0
+    c_cc = 4.0 * W1 * a * I1 / 9.0 + 2.0 * kappa * (2.0 * J**2 - J)
+    c_sym = 2.0 * W1 * a * I1 / 3.0 - 2.0 * kappa * (J**2 - J)
+    cross = _outer(eye, ci)
+    D = ((4.0 * W11)[..., None, None] * _outer(dJ1, dJ1)
+         + c_cross[..., None, None] * (cross + np.swapaxes(cross, -1, -2))
+         + c_cc[..., None, None] * _outer(ci, ci) + c_sym[..., None, None] * _sym(ci))
     return S, D

@@ -5,10 +5,12 @@ The motion is a displacement of every node of the solid elements:
 * ``translation`` -- rigid motion ``(0, -t)``;
 * ``rotation`` -- rigid clockwise rotation by ``theta`` about the solid's
   area centroid ``c``: ``u = R (X - c) + c - X``, ``R = [[cos, sin], [-sin, cos]]``;
-* ``bending`` -- U shape facing down (Euler-Bernoulli kinematics): with
-  ``xi = (x - x_c) / (L/2)`` over the solid's extent, the centre line moves
-  ``v = -d xi^2`` and cross-sections rotate with it, ``u_x = -(y - y_c) v'``;
-  the tips move down by ``d``, the centre stays;
+* ``bending`` -- U shape facing down: with ``xi = (x - x_c) / (L/2)`` over
+  the solid's extent, the centre line moves ``v = -d xi^2`` and every
+  cross-section turns rigidly to stay normal to it (angle ``phi = atan v'``),
+  so a point at height ``eta = y - y_c`` moves
+  ``(-eta sin phi, v - eta (1 - cos phi))``; the tips move down by ``d``, the
+  centre stays, the thickness is kept;
 * ``pressure`` -- a cantilever clamped on the channel walls under a uniform
   pressure on its upstream (left-facing) faces, solved with plane-strain
   elasticity on the solid and scaled so the largest displacement is
@@ -24,7 +26,7 @@ from tofsi.errors import InputError
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.mesh import SOLID, StructuredQuadMesh
-from tofsi.physics.elasticity import element_stiffness, plane_strain_matrix
+from tofsi.physics.elasticity import element_stiffness, lame
 from tofsi.quality import signed_area
 
 
@@ -49,8 +51,9 @@ def u_bending(points: np.ndarray, extent: np.ndarray, tip: float) -> np.ndarray:
     half = 0.5 * (extent[1, 0] - extent[0, 0])
     xi = (points[:, 0] - xc) / half
     v = -tip * xi**2
-    slope = -2.0 * tip * xi / half
-    return np.column_stack([-(points[:, 1] - yc) * slope, v])
+    phi = np.arctan(-2.0 * tip * xi / half)
+    eta = points[:, 1] - yc
+    return np.column_stack([-eta * np.sin(phi), v - eta * (1.0 - np.cos(phi))])
 
 
 def upstream_pressure_load(mesh: StructuredQuadMesh, pressure: float = 1.0) -> np.ndarray:
@@ -73,7 +76,7 @@ def cantilever_under_pressure(mesh: StructuredQuadMesh, clamped_sides, poisson_r
     solid = np.flatnonzero(mesh.region == SOLID)
     q = mesh.quads[solid]
     dofs = element_dofs(q, 2)
-    Ke = element_stiffness(mesh.points[q], plane_strain_matrix(1.0, poisson_ratio))
+    Ke = element_stiffness(mesh.points[q], *lame(1.0, poisson_ratio))
     in_solid = np.zeros(mesh.n_nodes, dtype=bool)
     in_solid[q.ravel()] = True
     clamped = np.concatenate([mesh.side_nodes(s) for s in clamped_sides])

@@ -16,6 +16,7 @@ solves each.
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 import pyamg
@@ -27,30 +28,54 @@ from tofsi.errors import NumericalError
 log = logging.getLogger(__name__)
 
 
-def nested_dissection(coords: np.ndarray, leaf: int = 64) -> np.ndarray:
-    """Permutation of unknowns with integer grid positions ``coords`` ``(m, 2)``.
+def nested_dissection(coords: np.ndarray, leaf: int = 32) -> np.ndarray:
+    """Permutation of unknowns with integer fine-grid positions ``coords`` ``(m, 2)``.
 
-    Each block is cut at the middle of its longer side; the two halves are
-    numbered first, the cut (separator) last. Unknowns on the same grid
-    position stay together; blocks of at most ``leaf`` unknowns are numbered
-    as they come.
+    Element corners sit on even fine-grid lines (Q2 mid-nodes on odd ones),
+    so every cut is an even line: it separates the elements on its two sides.
+    Each block of grid positions is cut at the middle of its longer side; the
+    two halves are numbered first, the cut (separator) last. Unknowns at the
+    same position (the components of a node, a velocity and a pressure) stay
+    together; blocks of at most ``leaf`` positions are numbered as they come.
     """
-    coords = np.asarray(coords)
+    coords = np.asarray(coords, dtype=np.int64)
+    key = coords[:, 0] * (coords[:, 1].max() + 1) + coords[:, 1]
+    unique_key, where = np.unique(key, return_inverse=True)
+    P = coords[_first_index(where, unique_key.size)]              # one row per position
     order: list[np.ndarray] = []
-    stack: list[tuple[bool, np.ndarray]] = [(False, np.arange(coords.shape[0]))]
+    stack: list[tuple[bool, np.ndarray]] = [(False, np.arange(P.shape[0]))]
     while stack:                                   # post-order with an explicit stack
         emit, idx = stack.pop()
-        c = coords[idx]
-        span = c.max(axis=0) - c.min(axis=0) if idx.size else np.zeros(2)
-        if emit or idx.size <= leaf or span.max() < 2:
+        if emit or idx.size <= leaf:
             order.append(idx)
             continue
-        axis = int(np.argmax(span))
-        mid = (c[:, axis].min() + c[:, axis].max()) // 2
-        stack.append((True, idx[c[:, axis] == mid]))
+        c = P[idx]
+        lo, hi = c.min(axis=0), c.max(axis=0)
+        axis = int(np.argmax(hi - lo))
+        lo, hi = lo[axis], hi[axis]
+        mid = 2 * ((lo + hi) // 4)                 # an even line near the middle
+        on_line = c[:, axis] == mid
+        if not (lo < mid < hi) or not on_line.any():
+            lines = np.unique(c[:, axis])
+            lines = lines[(lines % 2 == 0) & (lines > lo) & (lines < hi)]
+            if lines.size == 0:
+                order.append(idx)
+                continue
+            mid = lines[lines.size // 2]
+            on_line = c[:, axis] == mid
+        stack.append((True, idx[on_line]))
         stack.append((False, idx[c[:, axis] > mid]))
         stack.append((False, idx[c[:, axis] < mid]))
-    return np.concatenate(order)
+    rank = np.empty(P.shape[0], dtype=np.int64)
+    rank[np.concatenate(order)] = np.arange(P.shape[0])
+    return np.argsort(rank[where], kind="stable")
+
+
+def _first_index(where: np.ndarray, n: int) -> np.ndarray:
+    """Index of the first occurrence of each group ``0 .. n-1`` in ``where``."""
+    first = np.full(n, where.size, dtype=np.int64)
+    np.minimum.at(first, where, np.arange(where.size))
+    return first
 
 
 class DirectSolver:
@@ -131,10 +156,14 @@ class AMGSolver:
     solve_transpose = solve      # symmetric
 
 
-def make_solver(A: sp.spmatrix, kind: str = "direct", coords=None, near_null=None, tol=1e-10):
-    """A reusable solver of kind ``direct`` (LU) or ``amg`` (SPD systems only)."""
+def make_solver(A: sp.spmatrix, kind: str = "direct", coords=None, near_null=None, tol=1e-10,
+                perm=None):
+    """A reusable solver of kind ``direct`` (LU) or ``amg`` (SPD systems only).
+
+    perm : a precomputed fill-reducing permutation (else computed from ``coords``)
+    """
     if kind == "direct":
-        return DirectSolver(A, coords=coords)
+        return DirectSolver(A, coords=coords, perm=perm)
     if kind == "amg":
         return AMGSolver(A, near_null=near_null, tol=tol)
     raise ValueError(f"unknown linear solver {kind!r}")
@@ -145,41 +174,62 @@ class RecyclingSolver:
 
     The last factorization (or AMG hierarchy) preconditions GMRES on the new
     matrix; when GMRES needs more than ``max_iter`` iterations the new matrix
-    is factorized instead. Newton tangents of consecutive iterations and
-    increments differ little, so most solves cost a few triangular solves
-    instead of a factorization. Solves are converged to ``rtol`` (relative to
-    ``|b|``), so the answers are those of the new matrix, not the old.
+    is factorized instead, and when a solve's preconditioner applications
+    took longer than ``refresh_ratio`` times the last factorization (both
+    measured), the next matrix is (the preconditioner has gone stale). Newton tangents of
+    consecutive iterations and increments differ little, so most solves cost a
+    few triangular solves instead of a factorization. Solves are converged to
+    ``rtol`` (relative to ``|b|``), so the answers are those of the new matrix,
+    not the old.
     """
 
-    def __init__(self, factorize, max_iter: int = 12, rtol: float = 1e-10):
+    def __init__(self, factorize, max_iter: int = 20, rtol: float = 1e-10, refresh_ratio: float = 0.3):
         self.factorize, self.max_iter, self.rtol = factorize, max_iter, rtol
+        self.refresh_ratio = refresh_ratio
         self.solver = None
+        self.stale = False
         self.factorizations = 0
         self.krylov_iterations = 0
+        self._t_factor = 0.0
 
     def refresh(self, A) -> None:
+        t0 = time.perf_counter()
         self.solver = self.factorize(A)
+        self._t_factor = time.perf_counter() - t0
+        self.stale = False
         self.factorizations += 1
 
-    def _krylov(self, A, b, apply):
+    def _krylov(self, A, b, apply, x0=None, rtol=None):
+        """Right-preconditioned GMRES: minimizes the true residual ``|b - A x|``."""
         n = A.shape[0]
-        M = spla.LinearOperator((n, n), matvec=apply, dtype=np.result_type(A.dtype, b.dtype))
+        rtol = self.rtol if rtol is None else max(rtol, self.rtol)
+        dtype = np.result_type(A.dtype, b.dtype)
+        r0 = b if x0 is None else b - A @ x0
+        goal = rtol * np.linalg.norm(b)
+        if np.linalg.norm(r0) <= goal:
+            return (np.zeros_like(b) if x0 is None else x0), True
+        AM = spla.LinearOperator((n, n), matvec=lambda v: A @ apply(v), dtype=dtype)
         count = [0]
 
         def tick(_):
             count[0] += 1
-        x, info = spla.gmres(A, b, rtol=self.rtol, atol=0.0, restart=self.max_iter,
-                             maxiter=1, M=M, callback=tick, callback_type="pr_norm")
+        t0 = time.perf_counter()
+        y, info = spla.gmres(AM, r0, rtol=0.0, atol=goal, restart=self.max_iter, maxiter=1,
+                             callback=tick, callback_type="pr_norm")
         self.krylov_iterations += count[0]
-        ok = info == 0 and np.all(np.isfinite(x)) and \
-            np.linalg.norm(A @ x - b) <= 10 * self.rtol * np.linalg.norm(b)
+        self.stale = time.perf_counter() - t0 > self.refresh_ratio * self._t_factor
+        x = apply(y) if x0 is None else x0 + apply(y)
+        ok = info == 0 and np.all(np.isfinite(x)) and np.linalg.norm(b - A @ x) <= 1.01 * goal
         return x, ok
 
-    def solve(self, A, b: np.ndarray) -> np.ndarray:
+    def solve(self, A, b: np.ndarray, guess: np.ndarray | None = None,
+              rtol: float | None = None) -> np.ndarray:
+        """Solve ``A x = b``; ``guess`` (e.g. the previous increment) starts GMRES,
+        ``rtol`` loosens the tolerance for this solve (inexact Newton)."""
         if not np.any(b):
             return np.zeros_like(b)
-        if self.solver is not None:
-            x, ok = self._krylov(A, b, self.solver.solve)
+        if self.solver is not None and not self.stale:
+            x, ok = self._krylov(A, b, self.solver.solve, guess, rtol)
             if ok:
                 return x
         self.refresh(A)
@@ -188,7 +238,7 @@ class RecyclingSolver:
     def solve_transpose(self, A, b: np.ndarray) -> np.ndarray:
         if not np.any(b):
             return np.zeros_like(b)
-        if self.solver is not None:
+        if self.solver is not None and not self.stale:
             x, ok = self._krylov(A.T.tocsr(), b, self.solver.solve_transpose)
             if ok:
                 return x

@@ -23,41 +23,55 @@ class SparsePattern:
     rows ``(E, a)``, cols ``(E, b)``; :meth:`assemble` takes values ``(E, a, b)``.
     ``extra_diagonal`` adds diagonal slots (e.g. for Dirichlet rows) that
     :meth:`assemble` fills from ``diagonal``.
+
+    The first assembly goes through scipy's COO-to-CSR conversion (cheapest
+    for a matrix assembled once); from the second on, every triplet has a
+    precomputed slot in the CSR data array and assembly is one ``bincount``.
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
                  extra_diagonal: np.ndarray | None = None):
         E, a = rows.shape
         b = cols.shape[1]
-        r = np.broadcast_to(rows[:, :, None], (E, a, b)).ravel()
-        c = np.broadcast_to(cols[:, None, :], (E, a, b)).ravel()
         diag = np.zeros(0, dtype=np.int64) if extra_diagonal is None else np.asarray(extra_diagonal)
-        r = np.concatenate([r, diag])
-        c = np.concatenate([c, diag])
-        key = r.astype(np.int64) * shape[1] + c
-        unique, slot = np.unique(key, return_inverse=True)
+        self.rows = np.concatenate([np.broadcast_to(rows[:, :, None], (E, a, b)).ravel(), diag])
+        self.cols = np.concatenate([np.broadcast_to(cols[:, None, :], (E, a, b)).ravel(), diag])
         self.shape = shape
         self.n_element_values = E * a * b
-        self.slot = slot
-        self.indices = (unique % shape[1]).astype(np.int32)
-        row_of = unique // shape[1]
-        self.indptr = np.zeros(shape[0] + 1, dtype=np.int32)
-        np.cumsum(np.bincount(row_of, minlength=shape[0]), out=self.indptr[1:])
-        self.nnz = unique.size
+        self.slot = None
+        self._csr = None                     # (indices, indptr) once known
 
-    def assemble(self, values: np.ndarray, diagonal: np.ndarray | float | None = None):
-        """CSR matrix from element values ``(E, a, b)`` (and the extra diagonal entries)."""
+    def _values(self, values, diagonal):
         values = values.reshape(-1)
-        n_diag = self.slot.size - self.n_element_values
+        n_diag = self.rows.size - self.n_element_values
         if n_diag:
             d = np.broadcast_to(np.asarray(0.0 if diagonal is None else diagonal), (n_diag,))
             values = np.concatenate([values, d])
+        return values
+
+    def _build_slots(self) -> None:
+        indices, indptr = self._csr
+        row_of = np.repeat(np.arange(self.shape[0], dtype=np.int64), np.diff(indptr))
+        keys = row_of * self.shape[1] + indices
+        self.slot = np.searchsorted(keys, self.rows.astype(np.int64) * self.shape[1] + self.cols)
+
+    def assemble(self, values: np.ndarray, diagonal: np.ndarray | float | None = None):
+        """CSR matrix from element values ``(E, a, b)`` (and the extra diagonal entries)."""
+        values = self._values(values, diagonal)
+        if self._csr is None:
+            A = sp.coo_matrix((values, (self.rows, self.cols)), shape=self.shape).tocsr()
+            A.sum_duplicates()
+            self._csr = (A.indices, A.indptr)
+            return A
+        if self.slot is None:
+            self._build_slots()
+        nnz = self._csr[0].size
         if np.iscomplexobj(values):
-            data = (np.bincount(self.slot, weights=values.real, minlength=self.nnz)
-                    + 1j * np.bincount(self.slot, weights=values.imag, minlength=self.nnz))
+            data = (np.bincount(self.slot, weights=values.real, minlength=nnz)
+                    + 1j * np.bincount(self.slot, weights=values.imag, minlength=nnz))
         else:
-            data = np.bincount(self.slot, weights=values, minlength=self.nnz)
-        return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+            data = np.bincount(self.slot, weights=values, minlength=nnz)
+        return sp.csr_matrix((data, self._csr[0], self._csr[1]), shape=self.shape)
 
 
 def assemble_vector(dofs: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:

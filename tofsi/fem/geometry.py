@@ -19,7 +19,7 @@ def jacobians(Xe: np.ndarray, points: np.ndarray):
     gradients to physical ones: ``grad N = dN_ref @ Jinv``.
     """
     _, dN1 = shape_functions(1, points)                     # (G, 4, 2)
-    J = np.einsum("eki,gka->egia", Xe, dN1)                 # (E, G, 2, 2)
+    J = np.tensordot(Xe, dN1, axes=([1], [1])).transpose(0, 2, 1, 3)   # (E, G, 2, 2)
     det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
     inv = np.empty_like(J)
     inv[..., 0, 0] = J[..., 1, 1] / det
@@ -33,11 +33,11 @@ def physical_gradients(Xe: np.ndarray, degree: int, points: np.ndarray):
     """Gradients ``(E, G, k, 2)`` of the degree-``degree`` basis and ``det J`` ``(E, G)``."""
     _, dN = shape_functions(degree, points)                 # (G, k, 2)
     _, det, inv = jacobians(Xe, points)
-    grad = np.einsum("gka,egai->egki", dN, inv)
+    grad = np.matmul(dN, inv)                               # (E, G, k, 2)
     return grad, det
 
 
 def map_points(Xe: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Physical coordinates ``(E, G, 2)`` of reference points ``(G, 2)``."""
     N1, _ = shape_functions(1, points)
-    return np.einsum("gk,eki->egi", N1, Xe)
+    return np.matmul(N1, Xe)

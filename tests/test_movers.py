@@ -1,0 +1,206 @@
+"""Behaviour every mover shares, the registry, and ``tofsi move``."""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import movers
+from movers.base import MotionProblem
+from reference_kernels import elastic_quad
+from tofsi import quality
+from tofsi.errors import InputError, NumericalError
+from tofsi.mesh import StructuredQuadMesh
+from tofsi.motion import motion_setup, run_move
+from tofsi.physics.elasticity import element_stiffness, lame
+
+from conftest import load, scene_path
+
+MOVERS = ["linear", "spring", "yeoh"]
+
+
+def _annulus_like(n=8):
+    """A graded square mesh with a fixed inner block (a 'structure') and a fixed outer boundary."""
+    s = np.linspace(0, 1, n + 1)
+    mesh = StructuredQuadMesh(s + 0.04 * np.sin(2 * np.pi * s), s**1.15)
+    inner = np.flatnonzero((np.abs(mesh.centroids - 0.5) < 0.2).all(axis=1))
+    moving = np.setdiff1d(np.arange(mesh.n_elements), inner)
+    boundary = np.unique(np.concatenate([mesh.side_nodes(s) for s in ("left", "right", "bottom", "top")]))
+    fixed = np.union1d(boundary, np.unique(mesh.quads[inner]))
+    return mesh, MotionProblem.from_mesh(mesh, moving, fixed)
+
+
+def rotation(points, degrees, centre=(0.5, 0.5)):
+    t = np.radians(degrees)
+    R = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    rel = points - centre
+    return rel @ R.T - rel
+
+
+@pytest.mark.parametrize("name", MOVERS)
+def test_zero_motion_gives_zero_mesh_motion(name):
+    mesh, problem = _annulus_like()
+    result = movers.create(name).move(problem, np.zeros((mesh.n_nodes, 2)))
+    assert np.all(result.displacement == 0.0) and result.report.converged
+
+
+@pytest.mark.parametrize("name", MOVERS)
+def test_rigid_translation_of_every_fixed_node_translates_the_mesh(name):
+    mesh, problem = _annulus_like()
+    t = np.array([0.3, -0.17])
+    result = movers.create(name).move(problem, np.tile(t, (mesh.n_nodes, 1)))
+    np.testing.assert_allclose(result.displacement, np.tile(t, (mesh.n_nodes, 1)), atol=1e-12)
+
+
+def test_rigid_rotation_is_rigid_for_the_hyperelastic_mover():
+    mesh, problem = _annulus_like()
+    u = rotation(mesh.points, 40.0)
+    result = movers.create("yeoh", increments=4, newton_tol=1e-12).move(problem, u)
+    moved = mesh.points + result.displacement
+    np.testing.assert_allclose(quality.skewness(moved, mesh.quads), 1.0, atol=1e-8)
+    np.testing.assert_allclose(result.displacement, u, atol=1e-9)
+
+
+@pytest.mark.parametrize("increments", [1, 7])
+def test_linear_mover_rotates_rigidly_because_q1_reproduces_affine_fields(increments):
+    """Each increment of a rigid boundary rotation is an affine field: the patch test makes it exact."""
+    mesh, problem = _annulus_like()
+    u = rotation(mesh.points, 40.0)
+    result = movers.create("linear", increments=increments).move(problem, u)
+    np.testing.assert_allclose(result.displacement, u, atol=1e-12)
+
+
+@pytest.mark.parametrize("diagonals", ["1-3", "both"])
+def test_spring_mover_approaches_the_rigid_rotation_at_first_order(diagonals):
+    """Linearized torsion errs by O(theta^2 / N) on an irregular mesh: doubling N halves the error."""
+    mesh, problem = _annulus_like()
+    u = rotation(mesh.points, 40.0)
+    err = [np.abs(movers.create("spring", increments=n, diagonals=diagonals).move(problem, u)
+                  .displacement - u).max() for n in (16, 32, 64)]
+    rates = np.log2(np.array(err[:-1]) / err[1:])
+    assert err[0] > 1e-6 and np.all(np.abs(rates - 1.0) < 0.1), (err, rates)
+
+
+@pytest.mark.parametrize("chi", [0.0, 1.0, 1.7])
+def test_elastic_kernel_matches_the_slow_oracle(chi):
+    rng = np.random.default_rng(9)
+    Xe = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float) + 0.2 * rng.uniform(-1, 1, (5, 4, 2))
+    Ke = element_stiffness(Xe, *lame(2.5, 0.27), chi=chi)
+    for e in range(5):
+        np.testing.assert_allclose(Ke[e], elastic_quad(Xe[e], 2.5, 0.27, chi), rtol=1e-12, atol=1e-12)
+
+
+def test_jacobian_stiffening_makes_small_elements_relatively_stiffer():
+    Xe = np.array([[[0, 0], [1, 0], [1, 1], [0, 1]], [[0, 0], [0.1, 0], [0.1, 0.1], [0, 0.1]]], float)
+    lam, mu = lame(1.0, 0.3)
+    for chi, ratio in ((0.0, 1.0), (1.0, 100.0), (2.0, 1e4)):        # K ~ h^0 J^(-chi), J ~ h^2
+        K = element_stiffness(Xe, lam, mu, chi=chi)
+        assert K[1, 0, 0] / K[0, 0, 0] == pytest.approx(ratio, rel=1e-12)
+
+
+@pytest.mark.parametrize("mode", ["translation", "rotation", "bending"])
+def test_yeoh_keeps_every_foil_mesh_valid(mode):
+    scene = load("foil_in_channel", f"deformation.mode={mode}", "mover.name=yeoh")
+    setup, result = run_move(scene)
+    assert result.report.converged and result.report.quality[-1]["n_inverted"] == 0
+    moved = setup.mesh.points + result.displacement
+    assert not quality.inverted(moved, setup.mesh.quads).any()
+    # the structure moved exactly as prescribed
+    fixed = setup.problem.fixed_nodes
+    np.testing.assert_allclose(result.displacement[fixed], setup.prescribed[fixed], atol=1e-14)
+
+
+def _min_skew(scene):
+    try:
+        return run_move(scene)[1].report.quality[-1]["min_skewness"]
+    except NumericalError as err:
+        return err.diagnostic["quality"]["min_skewness"]
+
+
+TWO_LAYERS = {"spring": "[2.15, 1.25]", "linear": "[8.0, 4.0]", "yeoh": "[2.2, 1.45]"}
+
+
+@pytest.mark.parametrize("mode", ["translation", "rotation", "bending"])
+@pytest.mark.parametrize("name", MOVERS)
+def test_two_layer_stiffening_raises_min_skewness(name, mode):
+    base = ("foil_in_channel", f"deformation.mode={mode}", f"mover.name={name}")
+    plain = _min_skew(load(*base))
+    stiff = _min_skew(load(*base, f"mover.layers={TWO_LAYERS[name]}"))
+    assert stiff > plain + 0.02, (plain, stiff)
+
+
+def test_stiffening_factors_reach_the_layers():
+    scene = load("foil_in_channel", "mover.layers=[3.0, 2.0]")
+    setup = motion_setup(scene)
+    moving_layer = setup.layer[setup.moving]
+    np.testing.assert_array_equal(setup.problem.stiffening[moving_layer == 1], 3.0)
+    np.testing.assert_array_equal(setup.problem.stiffening[moving_layer == 2], 2.0)
+    np.testing.assert_array_equal(setup.problem.stiffening[moving_layer > 2], 1.0)
+
+
+def test_registry_lists_and_validates():
+    assert movers.available() == ["linear", "spring", "yeoh"]
+    with pytest.raises(InputError) as err:
+        movers.create("yeoh", A10=-1.0)
+    assert err.value.key == "mover.yeoh.A10"
+    with pytest.raises(InputError):
+        movers.create("nonesuch")
+
+
+def test_third_party_mover_is_found_through_its_entry_point(tmp_path):
+    (tmp_path / "fake_mover.py").write_text(textwrap.dedent("""
+        from dataclasses import dataclass
+        from movers.linear import LinearElasticMover, LinearParams
+        class FakeMover(LinearElasticMover):
+            name = "fake"
+    """))
+    dist = tmp_path / "fake_mover-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: fake-mover\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[tofsi.movers]\nfake = fake_mover:FakeMover\n")
+    code = ("import movers, tofsi, json; "
+            f"s = tofsi.load_scene({str(scene_path('foil_in_channel'))!r}, ['mover.name=fake']); "
+            "print(json.dumps([movers.available(), s.mover.name]))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={"PYTHONPATH": str(tmp_path), "PATH": ""})
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout) == [["fake", "linear", "spring", "yeoh"], "fake"]
+
+
+CONTRACT = {"min_skewness", "min_area_change", "max_area_change", "n_inverted", "converged", "wall_time_s"}
+
+
+@pytest.mark.parametrize("scene", ["beam_in_channel", "foil_in_channel"])
+@pytest.mark.parametrize("name", ["spring", "yeoh"])
+def test_tofsi_move_json_has_the_contract_keys(scene, name, tmp_path):
+    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "move", str(scene_path(scene)),
+                          "--set", f"mover.name={name}", "--output", str(tmp_path), "--json"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    figures = json.loads(run.stdout)
+    assert CONTRACT <= set(figures) and figures["converged"] and figures["n_inverted"] == 0
+    assert -1.0 <= figures["min_skewness"] <= 1.0
+    assert {"moved_mesh.vtu", "moved_mesh.png", "move.json"} <= {p.name for p in tmp_path.iterdir()}
+
+
+def test_tofsi_move_reports_an_inverted_linear_mesh_with_status_3(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "move", str(scene_path("foil_in_channel")),
+                          "--set", "mover.name=linear", "--output", str(tmp_path), "--json"],
+                         capture_output=True, text=True)
+    assert run.returncode == 3
+    diagnostic = json.loads((tmp_path / "diagnostic.json").read_text())
+    assert diagnostic["quality"]["n_inverted"] > 0 and "worst_element" in diagnostic["quality"]
+    assert json.loads(run.stdout)["converged"] is False
+
+
+@pytest.mark.parametrize("name", MOVERS)
+def test_foil_pushed_through_the_wall_ends_in_status_3(name, tmp_path):
+    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "move", str(scene_path("foil_in_channel")),
+                          "--set", f"mover.name={name}", "--set", "deformation.translation=0.6",
+                          "--set", "mover.yeoh.max_cutbacks=6", "--output", str(tmp_path)],
+                         capture_output=True, text=True)
+    assert run.returncode == 3, run.stderr
+    assert "Traceback" not in run.stderr and (tmp_path / "diagnostic.json").is_file()
