@@ -21,6 +21,7 @@ from tofsi.scene import load_scene
 COMMANDS = {
     "mesh": "build the scene's mesh; print sizes; write the mesh and a picture",
     "move": "mesh-motion study: move the mesh with the scene's mover; report quality",
+    "study": "parametric sweep (stiffening factors, A20, kappa, increments, mesh size) to a CSV and a plot",
 }
 
 
@@ -46,6 +47,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="print one JSON object with the run's figures on stdout")
         p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
         p.add_argument("-q", "--quiet", action="store_true", help="no progress or summary text")
+        if name == "study":
+            p.add_argument("--sweep", action="append", default=[], metavar="KEY=RANGE",
+                           help="KEY=START:STOP:STEP, KEY=START:STOP:*FACTOR or KEY=V1,V2,... "
+                                "(repeat for a grid; KEY[i] sweeps one list entry)")
+            p.add_argument("--jobs", type=int, default=1, help="worker processes")
     return parser
 
 

@@ -10,6 +10,7 @@ fluid-structure interface.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -36,11 +37,22 @@ def boundary_nodes(mesh: StructuredQuadMesh) -> np.ndarray:
     return np.unique(np.concatenate([mesh.side_nodes(s) for s in SIDES]))
 
 
+@lru_cache(maxsize=4)
+def _mesh_and_motion(geometry, mesh_settings, deformation, structure):
+    """Mesh and structure motion, shared by runs that differ only in the mover (studies)."""
+    mesh = build_mesh(geometry, mesh_settings)
+    motion = prescribed_motion(mesh, deformation, structure)
+    motion.setflags(write=False)
+    return mesh, motion
+
+
 def motion_setup(scene, prescribed: np.ndarray | None = None) -> MotionSetup:
     """Mesh, mover problem and prescribed motion of a mesh-motion scene."""
-    mesh = build_mesh(scene.geometry, scene.mesh)
     if prescribed is None:
-        prescribed = prescribed_motion(mesh, scene.deformation, scene.structure)
+        mesh, prescribed = _mesh_and_motion(scene.geometry, scene.mesh, scene.deformation,
+                                            scene.structure)
+    else:
+        mesh = build_mesh(scene.geometry, scene.mesh)
     moving = np.flatnonzero(mesh.region != SOLID)
     fixed = np.union1d(mesh.nodes_of(SOLID), boundary_nodes(mesh))
     n_layers = len(scene.mover.layers)
@@ -65,3 +77,15 @@ def moved_quality(setup: MotionSetup, displacement: np.ndarray) -> quality.Quali
     """Quality of the moving quads after the move."""
     mesh = setup.mesh
     return quality.summary(mesh.points, mesh.points + displacement, mesh.quads, setup.moving)
+
+
+def move_figures(scene) -> dict:
+    """Quality and cost of one move (the runner of mesh-motion studies)."""
+    setup, result = run_move(scene)
+    q = moved_quality(setup, result.displacement)
+    r = result.report
+    return {"converged": r.converged, "min_skewness": q.min_skewness,
+            "min_area_change": q.min_area_change, "max_area_change": q.max_area_change,
+            "n_inverted": q.n_inverted, "wall_time_s": r.wall_time_s, "increments": r.increments,
+            "newton_iterations": r.newton_iterations, "linear_solves": r.linear_solves,
+            "factorizations": r.factorizations}

@@ -83,10 +83,11 @@ def write_json(path, obj) -> Path:
 
 
 def write_csv(path, rows: list[dict]) -> Path:
-    """CSV with one column per key of the first row."""
+    """CSV with one column per key seen in any row (first-seen order; blanks where missing)."""
     buf = io.StringIO()
     if rows:
-        writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
+        fields = list(dict.fromkeys(k for row in rows for k in row))
+        writer = csv.DictWriter(buf, fieldnames=fields)
         writer.writeheader()
         writer.writerows(rows)
     return write_text(path, buf.getvalue())

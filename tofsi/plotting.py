@@ -48,3 +48,68 @@ def plot_mesh(path, points, quads, values, interface_edges=None, title="", label
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     save(fig, path)
+
+
+FIGURE_LABELS = {"min_skewness": "minimum skewness", "min_area_change": "minimum area change",
+                 "max_area_change": "maximum area change", "wall_time_s": "wall time [s]"}
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool:
+    """Line plots (one numeric key) or heat maps (two numeric keys) of a study.
+
+    Keys with non-numeric values (e.g. the mover's name) make one series or
+    panel each. Returns False when the study has no such shape to plot.
+    """
+    numeric = [k for k in keys if all(_is_number(r[k]) for r in rows)]
+    series_keys = [k for k in keys if k not in numeric]
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault(tuple(r[k] for k in series_keys), []).append(r)
+
+    def label(group):
+        return ", ".join(f"{k}={v}" for k, v in zip(series_keys, group)) or None
+
+    if len(numeric) == 1:
+        key = numeric[0]
+        figures = ["min_skewness", "min_area_change", "max_area_change", "wall_time_s"]
+        fig, axes = plt.subplots(1, 4, figsize=(16, 3.6), dpi=100)
+        for group, sel in groups.items():
+            x = [r[key] for r in sel]
+            for ax, f in zip(axes, figures):
+                ax.plot(x, [r.get(f, np.nan) for r in sel], "o-", ms=3, label=label(group))
+        for ax, f in zip(axes, figures):
+            ax.set_xlabel(key)
+            ax.set_ylabel(FIGURE_LABELS[f])
+            ax.grid(alpha=0.3)
+            if len({r[key] for r in rows}) > 2 and min(r[key] for r in rows) > 0 and \
+                    max(r[key] for r in rows) / min(r[key] for r in rows) > 100:
+                ax.set_xscale("log")
+        if series_keys:
+            axes[0].legend(fontsize=7)
+    elif len(numeric) == 2:
+        kx, ky = numeric
+        fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4.5), dpi=100, squeeze=False)
+        for ax, (group, sel) in zip(axes[0], groups.items()):
+            xs = sorted({r[kx] for r in sel})
+            ys = sorted({r[ky] for r in sel})
+            Z = np.full((len(ys), len(xs)), np.nan)
+            for r in sel:
+                Z[ys.index(r[ky]), xs.index(r[kx])] = r.get("min_skewness", np.nan)
+            mesh = ax.pcolormesh(xs, ys, Z, shading="nearest", cmap="viridis")
+            fig.colorbar(mesh, ax=ax, label="minimum skewness")
+            if np.isfinite(Z).any():
+                j, i = np.unravel_index(np.nanargmax(Z), Z.shape)
+                ax.plot(xs[i], ys[j], "r*", ms=12)
+                ax.set_title(f"{label(group) or ''}  best {Z[j, i]:.3f} at ({xs[i]:g}, {ys[j]:g})", fontsize=9)
+            ax.set_xlabel(kx)
+            ax.set_ylabel(ky)
+    else:
+        return False
+    if title:
+        fig.suptitle(title)
+    save(fig, path)
+    return True

@@ -1,0 +1,151 @@
+"""Parametric studies: run a scene over a grid of key values, collect the figures.
+
+A sweep names a dotted scene key and its values:
+
+* ``mover.yeoh.A20=1e-1:1e5:*10``  -- geometric: start, stop, factor;
+* ``mover.layers[0]=1:6:0.25``    -- linear: start, stop (inclusive), step;
+* ``mover.name=spring,linear,yeoh``  -- a list of values (TOML values or bare words).
+
+Several sweeps form their Cartesian product. ``KEY[i]`` sweeps one entry of
+a list key; the entries of one list are combined into one override
+(``mover.layers=[f1, f2]``). Each point runs in a worker process (``jobs``),
+and a run that fails numerically is recorded with ``converged = False`` and
+the figures of its diagnostic, not dropped.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from tofsi.errors import InputError, NumericalError
+from tofsi.scene import parse_override
+
+_INDEXED = re.compile(r"^(?P<key>[\w.]+)\[(?P<index>\d+)\]$")
+
+
+@dataclass(frozen=True)
+class Sweep:
+    key: str
+    values: tuple
+
+
+def _number(text: str, sweep: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise InputError("--sweep", sweep, f"{text!r} is not a number") from None
+
+
+def parse_sweep(text: str) -> Sweep:
+    """``KEY=START:STOP:STEP``, ``KEY=START:STOP:*FACTOR`` or ``KEY=v1,v2,...``."""
+    key, sep, spec = text.partition("=")
+    key, spec = key.strip(), spec.strip()
+    if not sep or not key or not spec:
+        raise InputError("--sweep", text, "expected KEY=START:STOP:STEP, KEY=START:STOP:*FACTOR "
+                                          "or KEY=V1,V2,...")
+    if ":" in spec:
+        parts = spec.split(":")
+        if len(parts) != 3:
+            raise InputError("--sweep", text, "a range needs START:STOP:STEP")
+        start, stop = _number(parts[0], text), _number(parts[1], text)
+        if parts[2].startswith("*"):
+            factor = _number(parts[2][1:], text)
+            if start <= 0 or stop < start or factor <= 1:
+                raise InputError("--sweep", text, "a geometric range needs 0 < START <= STOP, FACTOR > 1")
+            count = int(np.floor(np.log(stop / start) / np.log(factor) + 1e-9)) + 1
+            values = start * factor ** np.arange(count)
+        else:
+            step = _number(parts[2], text)
+            if step <= 0 or stop < start:
+                raise InputError("--sweep", text, "a range needs START <= STOP and STEP > 0")
+            count = int(np.floor((stop - start) / step + 1e-9)) + 1
+            values = start + step * np.arange(count)
+        if count > 100_000:
+            raise InputError("--sweep", text, "more than 100000 values")
+        return Sweep(key, tuple(float(v) for v in np.round(values, 12)))
+    values = tuple(parse_override(f"v={v.strip()}")[1] for v in spec.split(","))
+    return Sweep(key, values)
+
+
+def points(sweeps: list[Sweep]) -> list[dict]:
+    """The Cartesian product of the sweeps, one ``{key: value}`` per run."""
+    keys = [s.key for s in sweeps]
+    return [dict(zip(keys, combo)) for combo in itertools.product(*(s.values for s in sweeps))]
+
+
+def overrides_for(point: dict, base: dict | None = None) -> list[str]:
+    """Override strings for a sweep point; ``KEY[i]`` entries join into one list."""
+    lists: dict[str, dict[int, object]] = {}
+    out = []
+    for key, value in point.items():
+        match = _INDEXED.match(key)
+        if match:
+            lists.setdefault(match["key"], {})[int(match["index"])] = value
+        else:
+            out.append(f"{key}={_toml(value)}")
+    for key, entries in lists.items():
+        size = max(entries) + 1
+        if set(entries) != set(range(size)):
+            raise InputError("--sweep", key, f"sweeps of {key}[i] must cover every index 0..{size - 1}")
+        out.append(f"{key}=[{', '.join(_toml(entries[i]) for i in range(size))}]")
+    return out
+
+
+def _toml(value) -> str:
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value)
+
+
+def _run_point(args):
+    runner, scene_path, overrides, point = args
+    from tofsi.scene import load_scene
+    t0 = time.perf_counter()
+    try:
+        figures = runner(load_scene(scene_path, overrides))
+    except NumericalError as err:
+        figures = {"converged": False, "error": str(err).splitlines()[0],
+                   **{k: v for k, v in err.diagnostic.get("quality", {}).items()
+                      if k in ("min_skewness", "min_area_change", "max_area_change", "n_inverted")}}
+    return {**point, **figures, "run_time_s": time.perf_counter() - t0}
+
+
+def run_study(scene_path, base_overrides: list[str], sweeps: list[Sweep],
+              runner: Callable[[object], dict], jobs: int = 1, progress=None) -> list[dict]:
+    """Run ``runner(scene)`` at every sweep point; rows in sweep order.
+
+    ``runner`` must be a module-level function (it is sent to worker processes).
+    """
+    grid = points(sweeps)
+    tasks = [(runner, str(scene_path), list(base_overrides) + overrides_for(p), p) for p in grid]
+    from tofsi.scene import load_scene
+    for task in tasks[:1] + tasks[-1:]:                 # bad keys fail here, before any work
+        load_scene(task[1], task[2])
+    rows: list[dict] = []
+    if jobs <= 1:
+        for i, task in enumerate(tasks):
+            rows.append(_run_point(task))
+            if progress:
+                progress(i + 1, len(tasks), rows[-1])
+        return rows
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for i, row in enumerate(pool.map(_run_point, tasks)):
+            rows.append(row)
+            if progress:
+                progress(i + 1, len(tasks), row)
+    return rows
+
+
+def best(rows: list[dict], figure: str = "min_skewness") -> dict | None:
+    """The row with the largest ``figure`` (NaN and missing values ignored)."""
+    valid = [r for r in rows if isinstance(r.get(figure), (int, float)) and np.isfinite(r[figure])]
+    return max(valid, key=lambda r: r[figure]) if valid else None
