@@ -28,7 +28,7 @@ from tofsi.errors import NumericalError
 log = logging.getLogger(__name__)
 
 
-def nested_dissection(coords: np.ndarray, leaf: int = 32) -> np.ndarray:
+def nested_dissection(coords: np.ndarray, leaf: int = 32, last=None) -> np.ndarray:
     """Permutation of unknowns with integer fine-grid positions ``coords`` ``(m, 2)``.
 
     Element corners sit on even fine-grid lines (Q2 mid-nodes on odd ones),
@@ -37,6 +37,11 @@ def nested_dissection(coords: np.ndarray, leaf: int = 32) -> np.ndarray:
     two halves are numbered first, the cut (separator) last. Unknowns at the
     same position (the components of a node, a velocity and a pressure) stay
     together; blocks of at most ``leaf`` positions are numbered as they come.
+
+    last : optional boolean per unknown; within every block these come after
+    the others. For saddle-point systems (pressures last) every pressure is
+    eliminated after the velocities it couples to in its block, so its pivot is
+    a non-zero Schur complement and the LU can keep the diagonal pivots.
     """
     coords = np.asarray(coords, dtype=np.int64)
     key = coords[:, 0] * (coords[:, 1].max() + 1) + coords[:, 1]
@@ -68,7 +73,11 @@ def nested_dissection(coords: np.ndarray, leaf: int = 32) -> np.ndarray:
         stack.append((False, idx[c[:, axis] < mid]))
     rank = np.empty(P.shape[0], dtype=np.int64)
     rank[np.concatenate(order)] = np.arange(P.shape[0])
-    return np.argsort(rank[where], kind="stable")
+    if last is None:
+        return np.argsort(rank[where], kind="stable")
+    block = np.empty(P.shape[0], dtype=np.int64)
+    block[np.concatenate(order)] = np.repeat(np.arange(len(order)), [len(o) for o in order])
+    return np.lexsort((rank[where], np.asarray(last, dtype=np.int64), block[where]))
 
 
 def _first_index(where: np.ndarray, n: int) -> np.ndarray:
@@ -83,10 +92,20 @@ class DirectSolver:
 
     coords : optional integer grid positions ``(m, 2)`` of the unknowns, for
     the nested-dissection ordering; without them SuperLU's MMD(A^T + A) is used.
+    With a nested-dissection ordering SuperLU keeps the diagonal pivot unless
+    it is below 1e-6 of its column's largest entry, which keeps the ordering's
+    low fill (a larger threshold is scale-sensitive: with strong Brinkman
+    friction it pivots the fill up tenfold); saddle-point systems need their
+    pressures ordered last within each block (``nested_dissection(..., last=...)``).
+    Each solve checks its residual and refines iteratively (at most twice)
+    when it exceeds ``refine_tol`` relative to ``|b|``.
     """
+
+    refine_tol = 1e-12
 
     def __init__(self, A: sp.spmatrix, coords: np.ndarray | None = None, perm: np.ndarray | None = None):
         A = sp.csc_matrix(A)
+        self.A = A
         if perm is None and coords is not None:
             perm = nested_dissection(coords)
         self.perm = perm
@@ -94,19 +113,30 @@ class DirectSolver:
             if perm is None:
                 self._lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
             else:
-                self._lu = spla.splu(A[perm][:, perm].tocsc(), permc_spec="NATURAL")
+                self._lu = spla.splu(A[perm][:, perm].tocsc(), permc_spec="NATURAL",
+                                     diag_pivot_thresh=1e-6)
         except RuntimeError as err:        # "Factor is exactly singular"
             raise NumericalError(f"sparse LU failed: {err}",
                                  {"size": A.shape[0], "nnz": A.nnz}) from None
         self.shape = A.shape
         self.dtype = A.dtype
 
-    def _apply(self, b: np.ndarray, trans: str) -> np.ndarray:
+    def _raw(self, b: np.ndarray, trans: str) -> np.ndarray:
         if self.perm is None:
-            x = self._lu.solve(b, trans=trans)
-        else:
-            x = np.empty_like(b, dtype=np.result_type(b, self.dtype))
-            x[self.perm] = self._lu.solve(np.ascontiguousarray(b[self.perm]), trans=trans)
+            return self._lu.solve(b, trans=trans)
+        x = np.empty_like(b, dtype=np.result_type(b, self.dtype))
+        x[self.perm] = self._lu.solve(np.ascontiguousarray(b[self.perm]), trans=trans)
+        return x
+
+    def _apply(self, b: np.ndarray, trans: str) -> np.ndarray:
+        A = self.A if trans == "N" else self.A.T
+        x = self._raw(b, trans)
+        bnorm = np.linalg.norm(b)
+        for _ in range(2):                               # iterative refinement
+            r = b - A @ x
+            if not np.all(np.isfinite(x)) or np.linalg.norm(r) <= self.refine_tol * bnorm:
+                break
+            x = x + self._raw(r, trans)
         if not np.all(np.isfinite(x)):
             raise NumericalError("linear solve produced non-finite values (singular matrix?)",
                                  {"size": self.shape[0]})

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofsi.fem.shapes import shape_functions
+from tofsi.fem.shapes import shape_functions, shape_hessians
 
 
 def jacobians(Xe: np.ndarray, points: np.ndarray):
@@ -41,3 +41,19 @@ def map_points(Xe: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Physical coordinates ``(E, G, 2)`` of reference points ``(G, 2)``."""
     N1, _ = shape_functions(1, points)
     return np.matmul(N1, Xe)
+
+
+def physical_hessians(Xe: np.ndarray, degree: int, points: np.ndarray, grad=None):
+    """Second derivatives ``(E, G, k, 2, 2)`` of the basis on the bilinear map.
+
+    ``d2N/dx_i dx_j = Jinv_ai Jinv_bj (d2N/dxi_a dxi_b - sum_m dN/dx_m d2x_m/dxi_a dxi_b)``;
+    only the mixed second derivative of a bilinear map is non-zero.
+    """
+    H_ref = shape_hessians(degree, points)                  # (G, k, 2, 2)
+    _, _, inv = jacobians(Xe, points)
+    if grad is None:
+        grad, _ = physical_gradients(Xe, degree, points)
+    H1 = shape_hessians(1, points)                          # (G, 4, 2, 2)
+    X2 = np.einsum("ekm,gkab->egmab", Xe, H1)               # d2x_m / dxi_a dxi_b (E, G, 2, 2, 2)
+    corrected = H_ref[None] - np.einsum("egkm,egmab->egkab", grad, X2)
+    return np.einsum("egai,egkab,egbj->egkij", inv, corrected, inv)
