@@ -59,7 +59,7 @@ def run_case(refine: float, case: str, solver: str) -> dict:
         from movers.linear import LinearElasticMover
         mover = LinearElasticMover(scene.mover.options)
         Ke = mover.element_matrices()(problem.points[problem.quads]) * problem.stiffening[:, None, None]
-        K = problem.dirichlet().matrix(Ke)
+        K = problem.bc.matrix(Ke)
         b = np.random.default_rng(0).normal(size=K.shape[0])
         t0 = time.perf_counter()
         if solver == "direct":

@@ -19,12 +19,14 @@ from __future__ import annotations
 import logging
 import time
 from abc import ABC, abstractmethod
+import dataclasses
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from typing import Callable, ClassVar
 
 import numpy as np
 
+from movers.blend import Blend, node_scale
 from tofsi import quality
 from tofsi.errors import NumericalError
 from tofsi.fem.assembly import element_dofs
@@ -45,6 +47,9 @@ class MotionProblem:
     fixed_nodes : nodes whose displacement is prescribed
     stiffening : (Em,) stiffness factor per moving quad (layered stiffening)
     grid : (n, 2) integer fine-grid positions of the nodes (for the LU ordering), optional
+    blend : (n,) solid indicator per node for the density-blended form
+        (see :mod:`movers.blend`); then the prescribed motion is the structural
+        displacement of every node, and ``fixed_nodes`` are held at theirs
     """
 
     points: np.ndarray
@@ -52,6 +57,7 @@ class MotionProblem:
     fixed_nodes: np.ndarray
     stiffening: np.ndarray | None = None
     grid: np.ndarray | None = None
+    blend: np.ndarray | None = None
 
     def __post_init__(self):
         n = self.points.shape[0]
@@ -70,7 +76,7 @@ class MotionProblem:
     def n_nodes(self) -> int:
         return self.points.shape[0]
 
-    @property
+    @cached_property
     def dofs(self) -> np.ndarray:
         """Element dofs ``(Em, 8)``, node-interleaved."""
         return element_dofs(self.quads, 2)
@@ -79,7 +85,9 @@ class MotionProblem:
     def fixed_dofs(self) -> np.ndarray:
         return element_dofs(self.fixed_nodes[:, None], 2).ravel()
 
-    def dirichlet(self) -> DirichletOperator:
+    @cached_property
+    def bc(self) -> DirichletOperator:
+        """The Dirichlet operator of the fixed dofs, built once."""
         return DirichletOperator(self.dofs, self.dofs, 2 * self.n_nodes, self.fixed_dofs)
 
     def dof_grid(self) -> np.ndarray | None:
@@ -93,12 +101,21 @@ class MotionProblem:
 
     @classmethod
     def from_mesh(cls, mesh, moving: np.ndarray, fixed_nodes: np.ndarray,
-                  stiffening: np.ndarray | None = None) -> "MotionProblem":
+                  stiffening: np.ndarray | None = None, blend: np.ndarray | None = None) -> "MotionProblem":
         """The problem for the quads ``mesh.quads[moving]`` of a structured mesh."""
         i = np.tile(np.arange(mesh.nx + 1), mesh.ny + 1)
         j = np.repeat(np.arange(mesh.ny + 1), mesh.nx + 1)
         return cls(points=mesh.points, quads=mesh.quads[moving], fixed_nodes=fixed_nodes,
-                   stiffening=stiffening, grid=np.column_stack([2 * i, 2 * j]))
+                   stiffening=stiffening, grid=np.column_stack([2 * i, 2 * j]), blend=blend)
+
+    def with_data(self, stiffening=None, blend=None) -> "MotionProblem":
+        """The same mesh with other stiffening factors or blend (the cached operators are kept)."""
+        other = dataclasses.replace(self, stiffening=self.stiffening if stiffening is None else stiffening,
+                                    blend=self.blend if blend is None else blend)
+        for key in ("bc", "dofs", "ordering"):
+            if key in self.__dict__:
+                other.__dict__[key] = self.__dict__[key]
+        return other
 
 
 @dataclass
@@ -129,6 +146,8 @@ class MoveResult:
     cell_data: dict = field(default_factory=dict)   # per moving quad, e.g. the spring diagonals
     trajectory: list | None = None                  # [x_0, ..., x_N] of path-dependent movers
     solver: object = None                           # the forward solver, reused by the adjoint
+    blend: object = None                            # the movers.blend.Blend used, if any
+    target: np.ndarray | None = None                # (2n,) the prescribed motion as applied
 
 
 def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
@@ -156,12 +175,22 @@ class Mover(ABC):
 
     @abstractmethod
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
-        """Vector-Jacobian product of the map (prescribed, stiffening) -> displacement.
+        """Vector-Jacobian product of the map (prescribed, stiffening, blend) -> displacement.
 
         xbar : (n, 2) adjoint of the displacement
-        returns ``(prescribed_bar (n, 2), stiffening_bar (Em,))``; ``prescribed_bar``
-        is zero on free nodes.
+        returns ``(prescribed_bar (n, 2), stiffening_bar (Em,), blend_bar (n,))``;
+        without a blend ``prescribed_bar`` is zero on free nodes and ``blend_bar`` zero.
         """
+
+    @abstractmethod
+    def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
+        """Unstiffened element matrices ``(Em, 8, 8)`` of the reference mesh (blend scale)."""
+
+    def _blend(self, problem: MotionProblem):
+        if problem.blend is None:
+            return None
+        c = node_scale(self.reference_matrices(problem), problem.dofs, problem.n_nodes)
+        return Blend.build(np.asarray(problem.blend, float), c, problem.bc.is_fixed)
 
     # helpers ---------------------------------------------------------------
     def _solver(self, problem: MotionProblem) -> RecyclingSolver:
@@ -180,6 +209,8 @@ class Mover(ABC):
             raise ValueError(f"prescribed displacement must be ({problem.n_nodes}, 2)")
         if not np.all(np.isfinite(prescribed)):
             raise NumericalError("prescribed displacement contains NaN or inf", {})
+        if problem.blend is not None:               # the structure's motion everywhere
+            return prescribed.reshape(-1).copy(), time.perf_counter()
         target = np.zeros(2 * problem.n_nodes)
         fixed = problem.fixed_dofs
         target[fixed] = prescribed.reshape(-1)[fixed]
@@ -197,7 +228,8 @@ class Mover(ABC):
 
     @staticmethod
     def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float,
-                solver: RecyclingSolver | None = None, trajectory=None) -> MoveResult:
+                solver: RecyclingSolver | None = None, trajectory=None, blend=None,
+                target=None) -> MoveResult:
         report.wall_time_s = time.perf_counter() - t0
         if solver is not None:
             report.factorizations = solver.factorizations
@@ -211,4 +243,5 @@ class Mover(ABC):
                                  {"report": report.as_dict(), "quality": last},
                                  state=x.reshape(-1, 2))
         report.converged = True
-        return MoveResult(x.reshape(-1, 2), report, trajectory=trajectory, solver=solver)
+        return MoveResult(x.reshape(-1, 2), report, trajectory=trajectory, solver=solver, blend=blend,
+                          target=target)

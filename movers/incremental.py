@@ -1,26 +1,29 @@
 """Incremental linear mesh motion on the updated mesh, and its reverse sweep.
 
 Shared by the spring mover and the incremental linear-elastic mover: the
-prescribed motion is applied in ``N`` equal increments ``d = u_p / N``;
-increment ``k`` solves the stiffness of the *current* mesh, scaled per quad
-by the stiffening factors ``f``, ``K(x_k) = sum_e f_e K0_e(X + x_k)``:
+prescribed motion is applied in ``N`` equal increments ``d = u / N``;
+increment ``k`` uses the stiffness of the *current* mesh, scaled per quad by
+the stiffening factors ``f``, ``K(x_k) = sum_e f_e K0_e(X + x_k)``, and solves
 
-    [[K_ff, K_fp], [0, I]] [dx_f, dx_p] = [0, d],    x_{k+1} = x_k + dx.
+    [[W K_ff + S_c, W K_fp], [0, I]] [dx_f, dx_p] = [S_c d_f, d_p],   x_{k+1} = x_k + dx,
 
-The pattern (element dofs, Dirichlet mask) is built once; each increment
-only recomputes element matrices. Consecutive increments' matrices differ
-by O(1/N), so a :class:`~tofsi.linalg.RecyclingSolver` solves most of them
-with a few GMRES iterations preconditioned by an earlier factorization.
+with ``W = 1``, ``S_c = 0`` unless the problem is density-blended
+(:mod:`movers.blend`). The pattern (element dofs, Dirichlet mask) is built
+once; each increment only recomputes element matrices. Consecutive
+increments' matrices differ by O(1/N), so a
+:class:`~tofsi.linalg.RecyclingSolver` solves most of them with a few GMRES
+iterations preconditioned by an earlier factorization.
 
-Reverse sweep (vector-Jacobian product of ``u_p, f -> x``): with ``xbar`` the
+Reverse sweep (vector-Jacobian product of ``u, f, s -> x``): with ``xbar`` the
 adjoint of ``x_N``, for ``k = N-1 .. 0``
 
-    K_ff^T lam_f = xbar_f,   lam_p = xbar_p - K_fp^T lam_f,
-    dbar += lam_p,   fbar_e -= lam_e . K0_e dx_e,
-    xbar -= d/dx_k [lam_f . K(x_k) dx]     (shape derivative, complex step),
+    (W K_ff + S_c)^T lam_f = xbar_f,   lam_p = xbar_p - (K^T W lam_f)_p,
+    dbar_f += S_c lam_f,   dbar_p += lam_p,   fbar_e -= (W lam)_e . K0_e dx_e,
+    sbar_i -= lam_i . (c_i (dx_i - d_i) - (K dx)_i),
+    xbar -= d/dx_k [(W lam_f) . K(x_k) dx]        (shape derivative, complex step),
 
-and ``u_pbar = dbar / N``. A single increment on the reference mesh is the
-implicit-function-theorem adjoint of a residual mover, ``transposed_solve``.
+and ``ubar = dbar / N``. One increment on the reference mesh is the
+implicit-function adjoint of a residual mover: :func:`transposed_solve`.
 """
 
 from __future__ import annotations
@@ -38,37 +41,46 @@ ElementMatrices = Callable[[np.ndarray], np.ndarray]
 COMPLEX_STEP = 1e-30
 
 
-def _element_apply(Ke: np.ndarray, v: np.ndarray, dofs: np.ndarray) -> np.ndarray:
-    """Global ``K v`` from element matrices, without assembling ``K``."""
-    return assemble_vector(dofs, np.einsum("eab,eb->ea", Ke, v[dofs]), v.size)
+def element_apply(Ke: np.ndarray, v: np.ndarray, dofs: np.ndarray, transpose: bool = False) -> np.ndarray:
+    """Global ``K v`` (or ``K^T v``) from element matrices, without assembling ``K``."""
+    spec = "eba,eb->ea" if transpose else "eab,eb->ea"
+    return assemble_vector(dofs, np.einsum(spec, Ke, v[dofs]), v.size)
 
 
-def increment(problem: MotionProblem, bc, element_matrices: ElementMatrices, x: np.ndarray,
-              step: np.ndarray, solver, report: MoveReport, guess=None) -> np.ndarray:
-    """The change ``dx`` (2n,) of one increment from displacement ``x`` (2n,) by the
-    prescribed ``step`` (2n, zero on free dofs); ``guess`` starts the iterative solve."""
-    dofs = problem.dofs
+def system(bc, Ke: np.ndarray, dofs: np.ndarray, blend):
+    """The constrained matrix of ``W K + S_c`` (``K`` itself without a blend)."""
+    return bc.matrix(Ke) if blend is None else blend.matrix(bc, Ke, dofs)
+
+
+def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.ndarray,
+              step: np.ndarray, solver, report: MoveReport, guess=None, blend=None) -> np.ndarray:
+    """The change ``dx`` (2n,) of one increment from displacement ``x`` (2n,) towards
+    ``x + step``; ``guess`` starts the iterative solve."""
+    bc, dofs = problem.bc, problem.dofs
     Xe = problem.points[problem.quads] + x.reshape(-1, 2)[problem.quads]
     Ke = element_matrices(Xe) * problem.stiffening[:, None, None]
-    rhs = -_element_apply(Ke, step, dofs)
+    step_p = np.zeros_like(step)
+    step_p[bc.fixed] = step[bc.fixed]
+    rhs = -element_apply(Ke, step_p, dofs)
+    if blend is not None:
+        rhs = blend.weighted(rhs) + blend.diag * step
     rhs[bc.fixed] = step[bc.fixed]
     report.linear_solves += 1
-    dx = solver.solve(bc.matrix(Ke), rhs, guess)
+    dx = solver.solve(system(bc, Ke, dofs, blend), rhs, guess)
     dx[bc.fixed] = step[bc.fixed]              # exact, whatever the solver's tolerance
     return dx
 
 
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
                    element_matrices: ElementMatrices, solver, report: MoveReport,
-                   progress=None) -> tuple[np.ndarray, list[np.ndarray]]:
+                   progress=None, blend=None) -> tuple[np.ndarray, list[np.ndarray]]:
     """Apply ``target`` (2n,) in ``n`` increments; returns ``x_N`` and ``[x_0, ..., x_N]``."""
-    bc = problem.dirichlet()
     x = np.zeros_like(target)
     states = [x]
     step = target / n
     dx = None
     for k in range(n):
-        dx = increment(problem, bc, element_matrices, x, step, solver, report, guess=dx)
+        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend)
         x = x + dx
         states.append(x)
         report.increments += 1
@@ -79,18 +91,18 @@ def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
     return x, states
 
 
-def transposed_solve(bc, Ke: np.ndarray, dofs: np.ndarray, rhs: np.ndarray, solver):
-    """Adjoint of ``[[K_ff, K_fp], [0, I]]``: returns ``lam_f`` (zero on fixed dofs) and ``lam_p``.
+def transposed_solve(bc, A, Ke: np.ndarray, dofs: np.ndarray, rhs: np.ndarray, solver, blend=None):
+    """Adjoint of ``[[W K_ff + S_c, W K_fp], [0, I]]`` (matrix ``A``, element matrices ``Ke`` of ``K``).
 
-    ``K_ff^T lam_f = rhs_f``, ``lam_p = rhs_p - (K^T lam_f)_p``; ``Ke`` are the
-    (scaled) element matrices of ``K``. Uses the same Dirichlet operator as
-    the forward solve, with homogeneous values.
+    Returns ``lam`` (zero on fixed dofs) and ``lam_p`` (zero on free dofs):
+    ``A_ff^T lam_f = rhs_f``, ``lam_p = rhs_p - (K^T W lam_f)_p``. Uses the same
+    Dirichlet operator as the forward solve, with homogeneous values.
     """
-    lam = solver.solve_transpose(bc.matrix(Ke), bc.homogenize(rhs))
+    lam = solver.solve_transpose(A, bc.homogenize(rhs))
     lam[bc.fixed] = 0.0
+    lam_w = lam if blend is None else blend.weighted(lam)
     lam_p = np.zeros_like(rhs)
-    KTlam = assemble_vector(dofs, np.einsum("eba,eb->ea", Ke, lam[dofs]), rhs.size)
-    lam_p[bc.fixed] = rhs[bc.fixed] - KTlam[bc.fixed]
+    lam_p[bc.fixed] = rhs[bc.fixed] - element_apply(Ke, lam_w, dofs, transpose=True)[bc.fixed]
     return lam, lam_p
 
 
@@ -106,23 +118,30 @@ def shape_vjp(element_matrices: ElementMatrices, Xe: np.ndarray, factors: np.nda
     return out
 
 
-def increments_vjp(problem: MotionProblem, states: list[np.ndarray],
-                   element_matrices: ElementMatrices, solver, xbar: np.ndarray):
-    """Reverse sweep: ``(target_bar (2n,), stiffening_bar (Em,))`` for ``xbar`` on ``x_N``."""
-    bc = problem.dirichlet()
-    dofs, f = problem.dofs, problem.stiffening
+def increments_vjp(problem: MotionProblem, states: list[np.ndarray], target: np.ndarray,
+                   element_matrices: ElementMatrices, solver, xbar: np.ndarray, blend=None):
+    """Reverse sweep: ``(target_bar (2n,), stiffening_bar (Em,), blend_bar (n,))``."""
+    bc, dofs, f = problem.bc, problem.dofs, problem.stiffening
     n = len(states) - 1
+    step = target / n
     xbar = np.array(xbar, dtype=float).reshape(-1)
     step_bar = np.zeros_like(xbar)
     f_bar = np.zeros(len(problem.quads))
+    s_bar = np.zeros(problem.n_nodes)
     for k in range(n - 1, -1, -1):
         x_k, dx = states[k], states[k + 1] - states[k]
         Xe = problem.points[problem.quads] + x_k.reshape(-1, 2)[problem.quads]
         K0 = element_matrices(Xe)
-        lam, lam_p = transposed_solve(bc, K0 * f[:, None, None], dofs, xbar, solver)
+        Ke = K0 * f[:, None, None]
+        lam, lam_p = transposed_solve(bc, system(bc, Ke, dofs, blend), Ke, dofs, xbar, solver, blend)
         step_bar += lam_p
-        lam_e, dx_e = lam[dofs], dx[dofs]
+        lam_w = lam if blend is None else blend.weighted(lam)
+        if blend is not None:
+            step_bar += blend.diag * lam
+            Kdx = element_apply(Ke, dx, dofs)
+            s_bar -= (lam * (np.repeat(blend.c, 2) * (dx - step) - Kdx)).reshape(-1, 2).sum(axis=1)
+        lam_e, dx_e = lam_w[dofs], dx[dofs]
         f_bar -= np.einsum("ea,eab,eb->e", lam_e, K0, dx_e)
         if k > 0:                                   # x_0 = 0 does not depend on anything
             xbar = xbar - assemble_vector(dofs, shape_vjp(element_matrices, Xe, f, lam_e, dx_e), xbar.size)
-    return step_bar / n, f_bar
+    return step_bar / n, f_bar, s_bar

@@ -42,19 +42,24 @@ class LinearElasticMover(Mover):
         chi = self.params.chi
         return lambda Xe: element_stiffness(Xe, lam, mu, chi=chi)
 
+    def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
+        return self.element_matrices()(problem.points[problem.quads])
+
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
         solver = self._solver(problem)
+        blend = self._blend(problem)
         try:
             x, states = run_increments(problem, target, self.params.increments,
-                                       self.element_matrices(), solver, report, progress)
+                                       self.element_matrices(), solver, report, progress, blend)
         except NumericalError as err:
             self._fail(report, problem, np.zeros_like(target), str(err), t0)
-        return self._finish(report, problem, x, t0, solver, trajectory=states)
+        return self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
+                            target=target)
 
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
         """Reverse sweep; with one increment this is the adjoint of ``K x = 0, x_p = u_p``."""
-        target_bar, f_bar = increments_vjp(problem, result.trajectory, self.element_matrices(),
-                                           result.solver, xbar)
-        return target_bar.reshape(-1, 2), f_bar
+        t_bar, f_bar, s_bar = increments_vjp(problem, result.trajectory, result.target,
+                                             self.element_matrices(), result.solver, xbar, result.blend)
+        return t_bar.reshape(-1, 2), f_bar, s_bar

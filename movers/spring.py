@@ -47,16 +47,21 @@ class SpringMover(Mover):
         tsc = self.params.torsion_scale
         return lambda Xe: quad_stiffness(Xe, codes, tsc)
 
+    def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
+        """Both-diagonal matrices of the reference mesh (the blend scale must not depend
+        on the diagonal choice)."""
+        return quad_stiffness(problem.points[problem.quads], np.full(len(problem.quads), 2),
+                              self.params.torsion_scale)
+
     def choose_diagonals(self, problem: MotionProblem, target: np.ndarray, solver,
-                         report: MoveReport) -> np.ndarray:
+                         report: MoveReport, blend=None) -> np.ndarray:
         """Per-quad diagonal codes from two trial increments with opposite diagonals."""
-        bc = problem.dirichlet()
         step = target / self.params.increments
         x0 = np.zeros_like(target)
         skew = []
         for code in (0, 1):
             codes = np.full(len(problem.quads), code)
-            dx = increment(problem, bc, self.element_matrices(codes), x0, step, solver, report)
+            dx = increment(problem, self.element_matrices(codes), x0, step, solver, report, blend=blend)
             skew.append(quality.skewness(problem.points + dx.reshape(-1, 2), problem.quads))
         return np.where(skew[1] > skew[0], 1, 0)
 
@@ -64,23 +69,25 @@ class SpringMover(Mover):
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
         solver = self._solver(problem)
+        blend = self._blend(problem)
         choice = self.params.diagonals
         if choice == "selective":
-            codes = self.choose_diagonals(problem, target, solver, report)
+            codes = self.choose_diagonals(problem, target, solver, report, blend)
         else:
             codes = np.full(len(problem.quads), DIAGONALS.index(choice))
         try:
             x, states = run_increments(problem, target, self.params.increments,
-                                       self.element_matrices(codes), solver, report, progress)
+                                       self.element_matrices(codes), solver, report, progress, blend)
         except NumericalError as err:
             self._fail(report, problem, np.zeros_like(target), str(err), t0)
-        result = self._finish(report, problem, x, t0, solver, trajectory=states)
+        result = self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
+                              target=target)
         result.cell_data["diagonal"] = codes
         return result
 
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
         """Reverse sweep through the increments (the diagonal choice is held fixed)."""
-        target_bar, f_bar = increments_vjp(problem, result.trajectory,
-                                           self.element_matrices(result.cell_data["diagonal"]),
-                                           result.solver, xbar)
-        return target_bar.reshape(-1, 2), f_bar
+        t_bar, f_bar, s_bar = increments_vjp(problem, result.trajectory, result.target,
+                                             self.element_matrices(result.cell_data["diagonal"]),
+                                             result.solver, xbar, result.blend)
+        return t_bar.reshape(-1, 2), f_bar, s_bar

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult, quality_record
-from movers.incremental import COMPLEX_STEP, transposed_solve
+from movers.incremental import COMPLEX_STEP, element_apply, system, transposed_solve
 from movers.yeoh_material import stress, stress_and_tangent
 from tofsi import quality
 from tofsi.config import option
@@ -106,26 +106,60 @@ class YeohKernel:
         return Re, Ke, detF.min(axis=1)
 
 
+class Equations:
+    """The Yeoh mover's equations at load ``lambda``: ``D(x) = 0``.
+
+    Free rows ``W R(x) + S_c (x - lambda u)`` (``W = 1``, ``S_c = 0`` without a
+    blend), fixed rows ``x_p = lambda u_p``; the Jacobian is ``W K + S_c`` with
+    identity rows on the fixed dofs.
+    """
+
+    def __init__(self, kernel: YeohKernel, blend, target: np.ndarray):
+        self.kernel, self.blend, self.target = kernel, blend, target
+        self.bc, self.dofs = kernel.problem.bc, kernel.problem.dofs
+
+    def residual(self, Re: np.ndarray, x: np.ndarray, load: float) -> np.ndarray:
+        r = assemble_vector(self.dofs, Re, x.size)
+        if self.blend is not None:
+            r = self.blend.weighted(r) + self.blend.diag * (x - load * self.target)
+        return self.bc.homogenize(r)
+
+    def matrix(self, Ke: np.ndarray):
+        return system(self.bc, Ke, self.dofs, self.blend)
+
+    def jump(self, Ke: np.ndarray, boundary_step: np.ndarray) -> np.ndarray:
+        """Free-row response ``W K_fp d_p`` to moving the fixed dofs by ``d_p``."""
+        d = np.zeros_like(boundary_step)
+        d[self.bc.fixed] = boundary_step[self.bc.fixed]
+        r = element_apply(Ke, d, self.dofs)
+        return self.bc.homogenize(r if self.blend is None else self.blend.weighted(r))
+
+
 class YeohMover(Mover):
     """Yeoh hyperelastic mesh, Newton-Raphson with load stepping and cutback."""
 
     name = "yeoh"
     Params = YeohParams
 
+    def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
+        """Small-strain tangent of the reference mesh (unit stiffening)."""
+        kernel = YeohKernel(problem, self.params, np.ones(len(problem.quads)))
+        return kernel.evaluate(np.zeros(2 * problem.n_nodes))[1]
+
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
         p = self.params
-        kernel = YeohKernel(problem, p)
-        bc = problem.dirichlet()
+        blend = self._blend(problem)
+        eqs = Equations(YeohKernel(problem, p), blend, target)
         solver = self._solver(problem)
         x = np.zeros_like(target)
-        state = kernel.evaluate(x)[:2]                   # element residuals and tangents at x
+        state = eqs.kernel.evaluate(x)[:2]              # element residuals and tangents at x
         load, step = 0.0, 1.0 / p.increments
         while load < 1.0 - 1e-14:
             step = min(step, 1.0 - load)
-            x_new, state_new, history, why = self._increment(kernel, bc, solver, x, state,
-                                                             step * target, report)
+            x_new, state_new, history, why = self._increment(eqs, solver, x, state, load, load + step,
+                                                             report)
             report.residual_history.append(history)
             if x_new is None:
                 report.cutbacks += 1
@@ -143,24 +177,33 @@ class YeohMover(Mover):
                 progress(report.increments, p.increments, record)
             if len(history) <= 4:                # easy increment: take a longer next one
                 step *= 1.5
-        return self._finish(report, problem, x, t0, solver)
+        return self._finish(report, problem, x, t0, solver, blend=blend, target=target)
 
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
         """Implicit-function adjoint at the equilibrium: one transposed tangent solve.
 
-        ``R_f(x) = 0, x_p = u_p``: ``K_ff^T lam_f = xbar_f``, ``u_pbar = xbar_p - K_fp^T lam_f``,
-        ``f_bar_e = -lam_e . dR_e/df_e`` (complex step in the stiffening factor).
+        ``D(x; u, f, s) = 0``: ``(W K + S_c)_ff^T lam_f = xbar_f``, ``lam_p = xbar_p -
+        (K^T W lam_f)_p``; ``ubar = lam_p + S_c lam_f``, ``fbar_e = -(W lam)_e . dR_e/df_e``
+        (complex step in the factor), ``sbar_i = -lam_i . (c_i (x_i - u_i) - R_i)``.
         """
         x = np.asarray(result.displacement, dtype=float).reshape(-1)
-        kernel = YeohKernel(problem, self.params)
-        _, Ke, _ = kernel.evaluate(x)
-        bc, dofs = problem.dirichlet(), problem.dofs
+        blend, u = result.blend, result.target
+        eqs = Equations(YeohKernel(problem, self.params), blend, u)
+        Re, Ke, _ = eqs.kernel.evaluate(x)
         solver = result.solver or self._solver(problem)
-        lam, lam_p = transposed_solve(bc, Ke, dofs, np.asarray(xbar, float).reshape(-1), solver)
+        lam, lam_p = transposed_solve(eqs.bc, eqs.matrix(Ke), Ke, eqs.dofs,
+                                      np.asarray(xbar, float).reshape(-1), solver, blend)
+        lam_w = lam if blend is None else blend.weighted(lam)
         h = COMPLEX_STEP
         dR_df = YeohKernel(problem, self.params, problem.stiffening + 1j * h).evaluate(
             x, tangent=False)[0].imag / h
-        return lam_p.reshape(-1, 2), -np.einsum("ea,ea->e", lam[dofs], dR_df)
+        f_bar = -np.einsum("ea,ea->e", lam_w[eqs.dofs], dR_df)
+        s_bar = np.zeros(problem.n_nodes)
+        if blend is not None:
+            lam_p = lam_p + blend.diag * lam
+            R = assemble_vector(eqs.dofs, Re, x.size)
+            s_bar = -(lam * (np.repeat(blend.c, 2) * (x - u) - R)).reshape(-1, 2).sum(axis=1)
+        return lam_p.reshape(-1, 2), f_bar, s_bar
 
     @staticmethod
     def _forcing(history: list[float], target: float) -> float:
@@ -172,22 +215,23 @@ class YeohMover(Mover):
         eta = 0.1 if len(history) < 2 else min(0.1, 0.9 * (history[-1] / history[-2]) ** 2)
         return max(eta, 0.1 * target / history[-1])
 
-    def _line_search(self, kernel: YeohKernel, bc, x, dx, r, norm):
+    def _line_search(self, eqs: Equations, x, dx, r, norm, load):
         """Step length along ``dx``: returns (x_new, Re, Ke or None) or None.
 
-        ``g(alpha) = dx . R_free(x + alpha dx)`` is the slope of the energy
-        along the step; ``g(0) = dx . r < 0``. Accept the full step when the
-        slope has dropped to half or less; otherwise move to the secant root
-        ``alpha g0 / (g0 - g(alpha))`` (clipped to [0.1, 4]) once, then halve.
+        ``g(alpha) = dx . D(x + alpha dx)`` is the slope of the energy along the
+        step (without a blend); ``g(0) = dx . r < 0``. Accept the full step when
+        the slope has dropped to a tenth; otherwise try the secant root
+        ``g0 / (g0 - g(1))`` (clipped to [0.1, 4]) once, then halve. An accepted
+        step must reduce ``|D|`` and invert no element.
         """
-        dofs, n = kernel.problem.dofs, x.size
+        kernel = eqs.kernel
 
         def trial(alpha, tangent):
             xt = x + alpha * dx
             Re_t, Ke_t, det_t = kernel.evaluate(xt, tangent)
             if Re_t is None or not self._valid(kernel, xt, det_t):
                 return xt, None, None, None, None
-            rt = bc.homogenize(assemble_vector(dofs, Re_t, n))
+            rt = eqs.residual(Re_t, xt, load)
             return xt, Re_t, Ke_t, float(dx @ rt), float(np.linalg.norm(rt))
 
         g0 = float(dx @ r)
@@ -198,15 +242,14 @@ class YeohMover(Mover):
         if g1 is not None and g0 < 0 and g1 != g0:
             alphas.append(float(np.clip(g0 / (g0 - g1), 0.1, 4.0)))
         alphas += [0.5 ** k for k in range(1, 7)]
-        best = (xt, Re_t, Ke_t) if g1 is not None and n1 < (1 - 1e-4) * norm else None
+        best = (xt, Re_t, Ke_t, n1) if g1 is not None and n1 < (1 - 1e-4) * norm else None
         for alpha in alphas[1:]:
             xa, Re_a, _, ga, na = trial(alpha, False)
-            if ga is not None and na < (1 - 1e-4 * min(alpha, 1.0)) * norm and \
-                    (best is None or na < np.linalg.norm(bc.homogenize(assemble_vector(dofs, best[1], n)))):
+            if ga is not None and na < (1 - 1e-4 * min(alpha, 1.0)) * norm and (best is None or na < best[3]):
                 return xa, Re_a, None
             if best is not None:
-                return best
-        return best
+                return best[:3]
+        return None if best is None else best[:3]
 
     def _valid(self, kernel: YeohKernel, x: np.ndarray, det_min: np.ndarray) -> bool:
         if np.any(det_min <= 0.0):
@@ -214,48 +257,49 @@ class YeohMover(Mover):
         P = kernel.problem
         return not np.any(quality.inverted(P.points + x.reshape(-1, 2), P.quads))
 
-    def _increment(self, kernel: YeohKernel, bc, solver: RecyclingSolver, x0: np.ndarray, state0,
-                   boundary_step: np.ndarray, report: MoveReport):
-        """Newton solve of one load increment from the converged ``x0`` with element
-        residuals and tangents ``state0``; returns (x or None, its (Re, Ke),
-        |R_free| history, reason)."""
-        p, dofs, n = self.params, kernel.problem.dofs, x0.size
+    def _increment(self, eqs: Equations, solver: RecyclingSolver, x0: np.ndarray, state0,
+                   load0: float, load1: float, report: MoveReport):
+        """Newton solve from the converged ``x0`` (element residuals and tangents
+        ``state0``) at ``load0`` to ``load1``; returns (x or None, its (Re, Ke),
+        |D_free| history, reason)."""
+        p, bc = self.params, eqs.bc
         Re, Ke = state0
-        K = bc.matrix(Ke)
-        jump = assemble_vector(dofs, np.einsum("eab,eb->ea", Ke, boundary_step[dofs]), n)
-        r0 = assemble_vector(dofs, Re, n)
-        rhs = bc.homogenize(-(r0 + jump))
+        boundary_step = (load1 - load0) * eqs.target
+        jump = eqs.jump(Ke, boundary_step)
+        r0 = eqs.residual(Re, x0, load1)
+        rhs = -(r0 + jump)
         rhs[bc.fixed] = boundary_step[bc.fixed]
-        delta = solver.solve(K, rhs, rtol=1e-3)            # tangent predictor (loose)
+        delta = solver.solve(eqs.matrix(Ke), rhs, rtol=1e-3)   # tangent predictor (loose)
         delta[bc.fixed] = boundary_step[bc.fixed]
         x = x0 + delta
         report.linear_solves += 1
-        scale = max(np.linalg.norm(bc.homogenize(jump)), np.linalg.norm(r0[bc.fixed]),
-                    1e-300)
+        R_fixed = assemble_vector(eqs.dofs, Re, x0.size)[bc.fixed]
+        scale = max(np.linalg.norm(jump), np.linalg.norm(r0), np.linalg.norm(R_fixed), 1e-300)
         history: list[float] = []
-        Re, Ke, det_min = kernel.evaluate(x)
-        if not self._valid(kernel, x, det_min):
+        Re, Ke, det_min = eqs.kernel.evaluate(x)
+        if Re is None or not self._valid(eqs.kernel, x, det_min):
             return None, None, history, "predictor inverts an element"
         for it in range(p.max_newton + 1):
-            r = bc.homogenize(assemble_vector(dofs, Re, n))
+            r = eqs.residual(Re, x, load1)
             norm = float(np.linalg.norm(r))
             history.append(norm)
             if not np.isfinite(norm):
                 return None, None, history, "non-finite residual"
-            target = p.newton_tol * max(scale, np.linalg.norm(assemble_vector(dofs, Re, n)))
+            reactions = np.linalg.norm(assemble_vector(eqs.dofs, Re, x.size)[bc.fixed])
+            target = p.newton_tol * max(scale, reactions)
             if norm <= target:
                 return x, (Re, Ke), history, ""
             if it == p.max_newton:
                 return None, None, history, f"{p.max_newton} Newton iterations"
-            dx = solver.solve(bc.matrix(Ke), -r, rtol=self._forcing(history, target))
+            dx = solver.solve(eqs.matrix(Ke), -r, rtol=self._forcing(history, target))
             dx[bc.fixed] = 0.0
             report.linear_solves += 1
             report.newton_iterations += 1
-            found = self._line_search(kernel, bc, x, dx, r, norm)
+            found = self._line_search(eqs, x, dx, r, norm, load1)
             if found is None:
                 return None, None, history, "line search found no decrease"
             trial, Re_t, Ke_t = found
             if Ke_t is None:                                  # not the full step: tangent now
-                Re_t, Ke_t, _ = kernel.evaluate(trial)
+                Re_t, Ke_t, _ = eqs.kernel.evaluate(trial)
             x, Re, Ke = trial, Re_t, Ke_t
         return None, None, history, "unreachable"

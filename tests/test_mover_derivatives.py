@@ -1,8 +1,10 @@
 """Mover derivatives for the adjoint: vector-Jacobian products against central differences.
 
-The map is (prescribed motion u_p, stiffening factors f) -> mesh displacement x.
-For random adjoint seeds ``xbar`` and directions ``du``, ``df``:
-``xbar . (x(u + h du) - x(u - h du)) / 2h == ubar . du`` and likewise for ``f``.
+The map is (prescribed motion u, stiffening factors f, blend s) -> mesh displacement x,
+in the explicit-interface form (the inner block's nodes prescribed) and in the
+density-blended form (every node blends mover and structure with its own s).
+For random adjoint seeds ``xbar`` and directions:
+``xbar . (x(u + h du) - x(u - h du)) / 2h == ubar . du``, likewise for ``f`` and ``s``.
 Solves are run to round-off (``linear_tol = 1e-15`` forces factorizations),
 so the remaining error is the O(h^2) of the differences.
 """
@@ -14,7 +16,7 @@ import movers
 from movers.base import MotionProblem
 from tofsi.mesh import StructuredQuadMesh
 
-CASES = [("yeoh", {"A20": 50.0, "kappa": 2.0}),
+CASES = [("yeoh", {"A20": 50.0, "kappa": 2.0, "newton_tol": 1e-13}),
          ("linear", {"increments": 1}),
          ("linear", {"increments": 3, "chi": 0.6}),
          ("spring", {"increments": 1, "diagonals": "1-3"}),
@@ -22,45 +24,59 @@ CASES = [("yeoh", {"A20": 50.0, "kappa": 2.0}),
          ("spring", {"increments": 3, "diagonals": "selective"})]
 
 
-def setup_problem():
+def setup_problem(blended: bool):
     s = np.linspace(0, 1, 7)
     mesh = StructuredQuadMesh(s + 0.03 * np.sin(3 * s), s**1.1)
-    inner = np.flatnonzero((np.abs(mesh.centroids - 0.5) < 0.18).all(axis=1))
-    moving = np.setdiff1d(np.arange(mesh.n_elements), inner)
-    boundary = np.unique(np.concatenate([mesh.side_nodes(k) for k in ("left", "right", "bottom", "top")]))
-    fixed = np.union1d(boundary, np.unique(mesh.quads[inner]))
     rng = np.random.default_rng(11)
-    f = 1.0 + rng.uniform(0, 1, len(moving))
-    problem = MotionProblem.from_mesh(mesh, moving, fixed, f)
-    u = np.zeros((mesh.n_nodes, 2))
+    boundary = np.unique(np.concatenate([mesh.side_nodes(k) for k in ("left", "right", "bottom", "top")]))
+    inner = np.flatnonzero((np.abs(mesh.centroids - 0.5) < 0.18).all(axis=1))
     core = np.unique(mesh.quads[inner])
-    c = mesh.points[core] - 0.5
-    u[core] = 0.12 * np.column_stack([-c[:, 1], c[:, 0]]) + [0.03, -0.05]    # turn and shift
+    c = mesh.points - 0.5
+    u = 0.12 * np.column_stack([-c[:, 1], c[:, 0]]) + [0.03, -0.05]     # turn and shift
+    if blended:
+        moving = np.arange(mesh.n_elements)
+        blend = rng.uniform(0.0, 0.9, mesh.n_nodes)
+        blend[core] = 1.0
+        u[boundary] = 0.0
+        problem = MotionProblem.from_mesh(mesh, moving, boundary, 1.0 + rng.uniform(0, 1, len(moving)), blend)
+    else:
+        moving = np.setdiff1d(np.arange(mesh.n_elements), inner)
+        problem = MotionProblem.from_mesh(mesh, moving, np.union1d(boundary, core),
+                                          1.0 + rng.uniform(0, 1, len(moving)))
+        u[np.setdiff1d(np.arange(mesh.n_nodes), core)] = 0.0
     return mesh, problem, u
 
 
-def with_stiffening(problem, f):
-    return MotionProblem(problem.points, problem.quads, problem.fixed_nodes, f, problem.grid)
-
-
+@pytest.mark.parametrize("blended", [False, True], ids=["explicit", "blended"])
 @pytest.mark.parametrize("name,params", CASES, ids=[f"{n}-{p}" for n, p in CASES])
-def test_vjp_matches_central_differences(name, params):
-    mesh, problem, u = setup_problem()
+def test_vjp_matches_central_differences(name, params, blended):
+    mesh, problem, u = setup_problem(blended)
     mover = movers.create(name, linear_tol=1e-15, **params)
     result = mover.move(problem, u)
     rng = np.random.default_rng(12)
     xbar = rng.normal(size=(mesh.n_nodes, 2))
-    ubar, fbar = mover.vjp(problem, result, xbar)
-    assert np.all(ubar[np.setdiff1d(np.arange(mesh.n_nodes), problem.fixed_nodes)] == 0)
+    ubar, fbar, sbar = mover.vjp(problem, result, xbar)
+    free = np.setdiff1d(np.arange(mesh.n_nodes), problem.fixed_nodes)
+    if not blended:
+        assert np.all(ubar[free] == 0) and np.all(sbar == 0)
+    h = 1e-6
+
+    def fd(move_u=False, **change):
+        plus = mover.move(problem.with_data(**{k: v[0] for k, v in change.items()}),
+                          u + h * du if move_u else u).displacement
+        minus = mover.move(problem.with_data(**{k: v[1] for k, v in change.items()}),
+                           u - h * du if move_u else u).displacement
+        return np.sum(xbar * (plus - minus)) / (2 * h)
 
     du = np.zeros_like(u)
-    du[problem.fixed_nodes] = rng.normal(size=(problem.fixed_nodes.size, 2))
-    h = 1e-6
-    fd = np.sum(xbar * (mover.move(problem, u + h * du).displacement
-                        - mover.move(problem, u - h * du).displacement)) / (2 * h)
-    assert np.sum(ubar * du) == pytest.approx(fd, rel=1e-7, abs=1e-10)
-
+    moved = np.arange(mesh.n_nodes) if blended else problem.fixed_nodes
+    du[moved] = rng.normal(size=(moved.size, 2))
+    du[problem.fixed_nodes] *= 0.0 if blended else 1.0           # the walls stay in the blended form
+    assert np.sum(ubar * du) == pytest.approx(fd(move_u=True), rel=1e-7, abs=1e-10)
     df = rng.normal(size=len(problem.quads))
-    fd = np.sum(xbar * (mover.move(with_stiffening(problem, problem.stiffening + h * df), u).displacement
-                        - mover.move(with_stiffening(problem, problem.stiffening - h * df), u).displacement)) / (2 * h)
-    assert fbar @ df == pytest.approx(fd, rel=1e-7, abs=1e-10)
+    f = problem.stiffening
+    assert fbar @ df == pytest.approx(fd(stiffening=(f + h * df, f - h * df)), rel=1e-7, abs=1e-10)
+    if blended:
+        ds = rng.normal(size=mesh.n_nodes)
+        s = problem.blend
+        assert sbar @ ds == pytest.approx(fd(blend=(s + h * ds, s - h * ds)), rel=1e-7, abs=1e-10)
