@@ -148,6 +148,7 @@ class MoveResult:
     solver: object = None                           # the forward solver, reused by the adjoint
     blend: object = None                            # the movers.blend.Blend used, if any
     target: np.ndarray | None = None                # (2n,) the prescribed motion as applied
+    problem: object = None                          # the MotionProblem moved (set by callers)
 
 
 def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
@@ -181,6 +182,26 @@ class Mover(ABC):
         returns ``(prescribed_bar (n, 2), stiffening_bar (Em,), blend_bar (n,))``;
         without a blend ``prescribed_bar`` is zero on free nodes and ``blend_bar`` zero.
         """
+
+    @property
+    def path_dependent(self) -> bool:
+        """True when the map has no residual form (increments on the updated mesh)."""
+        return False
+
+    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
+        """``D(x)`` (2n,) and its Jacobian ``D_x`` for movers with a residual form.
+
+        Free rows ``W R(x) + S_c (x - target)``, fixed rows ``x - target``; ``D_x``
+        keeps the free rows' fixed columns (true Jacobian, see
+        :meth:`~tofsi.fem.dirichlet.DirichletOperator.row_matrix`). ``blend``: the
+        :class:`~movers.blend.Blend` of ``problem`` (from a move, or built here).
+        """
+        raise NotImplementedError(f"the {self.name} mover has no residual form "
+                                  "(increments on the updated mesh); use its vector-Jacobian product")
+
+    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None):
+        """``lam^T dD/d(target, stiffening, blend)``: ``(2n,)``, ``(Em,)``, ``(n,)`` (no solve)."""
+        raise NotImplementedError(f"the {self.name} mover has no residual form")
 
     @abstractmethod
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:

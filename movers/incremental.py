@@ -31,6 +31,7 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
+import scipy.sparse as sp
 
 from movers.base import MotionProblem, MoveReport, quality_record
 from tofsi.fem.assembly import assemble_vector
@@ -145,3 +146,33 @@ def increments_vjp(problem: MotionProblem, states: list[np.ndarray], target: np.
         if k > 0:                                   # x_0 = 0 does not depend on anything
             xbar = xbar - assemble_vector(dofs, shape_vjp(element_matrices, Xe, f, lam_e, dx_e), xbar.size)
     return step_bar / n, f_bar, s_bar
+
+
+def linear_residual(problem: MotionProblem, Ke: np.ndarray, x: np.ndarray, target: np.ndarray, blend):
+    """``D(x)`` and true ``D_x`` of the one-increment (linear) mover ``K x = 0``."""
+    bc, dofs = problem.bc, problem.dofs
+    r = element_apply(Ke, x, dofs)
+    if blend is not None:
+        r = blend.weighted(r) + blend.diag * (x - target)
+    r = bc.homogenize(r)
+    r[bc.fixed] = (x - target)[bc.fixed]
+    K = bc.row_matrix(Ke if blend is None else Ke * blend.weight[dofs][:, :, None])
+    if blend is not None:
+        K = K + sp.diags(blend.diag)
+    return r, K.tocsr()
+
+
+def linear_partials(problem: MotionProblem, K0: np.ndarray, x, target, lam, blend):
+    """``lam^T dD/d(target, f, s)`` of ``D = W K x + S_c (x - target)``, fixed rows ``x - target``."""
+    bc, dofs = problem.bc, problem.dofs
+    lam_f = bc.homogenize(lam)
+    t_bar = np.zeros_like(lam)
+    t_bar[bc.fixed] = -lam[bc.fixed]
+    lam_w = lam_f if blend is None else blend.weighted(lam_f)
+    f_bar = np.einsum("ea,eab,eb->e", lam_w[dofs], K0, x[dofs])
+    s_bar = np.zeros(problem.n_nodes)
+    if blend is not None:
+        t_bar -= blend.diag * lam_f
+        Kx = element_apply(K0 * problem.stiffening[:, None, None], x, dofs)
+        s_bar = (lam_f * (np.repeat(blend.c, 2) * (x - target) - Kx)).reshape(-1, 2).sum(axis=1)
+    return t_bar, f_bar, s_bar

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult
-from movers.incremental import increments_vjp, run_increments
+from movers.incremental import increments_vjp, linear_partials, linear_residual, run_increments
 from tofsi.config import option
 from tofsi.errors import NumericalError
 from tofsi.physics.elasticity import element_stiffness, lame
@@ -41,6 +41,25 @@ class LinearElasticMover(Mover):
         lam, mu = lame(1.0, self.params.poisson_ratio)
         chi = self.params.chi
         return lambda Xe: element_stiffness(Xe, lam, mu, chi=chi)
+
+    @property
+    def path_dependent(self) -> bool:
+        return self.params.increments > 1
+
+    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
+        """One increment on the reference mesh is linear: ``D = W K x + S_c (x - target)``."""
+        if self.path_dependent:
+            return super().residual(problem, x, target, blend)
+        blend = self._blend(problem) if blend is None else blend
+        Ke = self.element_matrices()(problem.points[problem.quads]) * problem.stiffening[:, None, None]
+        return linear_residual(problem, Ke, np.asarray(x, float).reshape(-1),
+                               np.asarray(target, float).reshape(-1), blend)
+
+    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None):
+        blend = self._blend(problem) if blend is None else blend
+        return linear_partials(problem, self.element_matrices()(problem.points[problem.quads]),
+                               np.asarray(x, float).reshape(-1), np.asarray(target, float).reshape(-1),
+                               np.asarray(lam, float).reshape(-1), blend)
 
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
         return self.element_matrices()(problem.points[problem.quads])

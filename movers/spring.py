@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult
-from movers.incremental import increment, increments_vjp, run_increments
+from movers.incremental import increment, linear_partials, linear_residual, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, quad_stiffness
 from tofsi import quality
 from tofsi.config import option
@@ -46,6 +46,28 @@ class SpringMover(Mover):
         """Unscaled quad matrices for the diagonal codes (complex-safe)."""
         tsc = self.params.torsion_scale
         return lambda Xe: quad_stiffness(Xe, codes, tsc)
+
+    @property
+    def path_dependent(self) -> bool:
+        """Several increments, or selective diagonals (chosen from the motion itself)."""
+        return self.params.increments > 1 or self.params.diagonals == "selective"
+
+    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
+        """One increment on the reference mesh is linear: ``D = W K x + S_c (x - target)``."""
+        if self.path_dependent:
+            return super().residual(problem, x, target, blend)
+        blend = self._blend(problem) if blend is None else blend
+        codes = np.full(len(problem.quads), DIAGONALS.index(self.params.diagonals))
+        Ke = self.element_matrices(codes)(problem.points[problem.quads]) * problem.stiffening[:, None, None]
+        return linear_residual(problem, Ke, np.asarray(x, float).reshape(-1),
+                               np.asarray(target, float).reshape(-1), blend)
+
+    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None):
+        blend = self._blend(problem) if blend is None else blend
+        codes = np.full(len(problem.quads), DIAGONALS.index(self.params.diagonals))
+        return linear_partials(problem, self.element_matrices(codes)(problem.points[problem.quads]),
+                               np.asarray(x, float).reshape(-1), np.asarray(target, float).reshape(-1),
+                               np.asarray(lam, float).reshape(-1), blend)
 
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
         """Both-diagonal matrices of the reference mesh (the blend scale must not depend

@@ -29,6 +29,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult, quality_record
 from movers.incremental import COMPLEX_STEP, element_apply, system, transposed_solve
@@ -141,6 +142,23 @@ class YeohMover(Mover):
     name = "yeoh"
     Params = YeohParams
 
+    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
+        """``D(x)`` at full load and its true Jacobian ``W K + S_c`` (consistent tangent)."""
+        blend = self._blend(problem) if blend is None else blend
+        x = np.asarray(x, float).reshape(-1)
+        target = np.asarray(target, float).reshape(-1)
+        eqs = Equations(YeohKernel(problem, self.params), blend, target)
+        Re, Ke, det = eqs.kernel.evaluate(x)
+        if Re is None:
+            raise NumericalError("yeoh residual: an element is inverted (det F <= 0)",
+                                 {"min_det_F": float(det.min())})
+        r = eqs.residual(Re, x, 1.0)
+        r[eqs.bc.fixed] = (x - target)[eqs.bc.fixed]
+        K = eqs.bc.row_matrix(Ke if blend is None else Ke * blend.weight[eqs.dofs][:, :, None])
+        if blend is not None:
+            K = K + sp.diags(blend.diag)
+        return r, K.tocsr()
+
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
         """Small-strain tangent of the reference mesh (unit stiffening)."""
         kernel = YeohKernel(problem, self.params, np.ones(len(problem.quads)))
@@ -180,12 +198,8 @@ class YeohMover(Mover):
         return self._finish(report, problem, x, t0, solver, blend=blend, target=target)
 
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
-        """Implicit-function adjoint at the equilibrium: one transposed tangent solve.
-
-        ``D(x; u, f, s) = 0``: ``(W K + S_c)_ff^T lam_f = xbar_f``, ``lam_p = xbar_p -
-        (K^T W lam_f)_p``; ``ubar = lam_p + S_c lam_f``, ``fbar_e = -(W lam)_e . dR_e/df_e``
-        (complex step in the factor), ``sbar_i = -lam_i . (c_i (x_i - u_i) - R_i)``.
-        """
+        """Implicit-function adjoint at the equilibrium: one transposed tangent solve,
+        ``D_x^T lam = xbar``, then ``-(lam^T dD/d(target, f, s))``."""
         x = np.asarray(result.displacement, dtype=float).reshape(-1)
         blend, u = result.blend, result.target
         eqs = Equations(YeohKernel(problem, self.params), blend, u)
@@ -193,17 +207,34 @@ class YeohMover(Mover):
         solver = result.solver or self._solver(problem)
         lam, lam_p = transposed_solve(eqs.bc, eqs.matrix(Ke), Ke, eqs.dofs,
                                       np.asarray(xbar, float).reshape(-1), solver, blend)
-        lam_w = lam if blend is None else blend.weighted(lam)
+        t_bar, f_bar, s_bar = self.residual_partials(problem, x, u, lam + lam_p, blend, Re)
+        return -t_bar.reshape(-1, 2), -f_bar, -s_bar
+
+    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None, Re=None):
+        """``lam^T dD/d(target, f, s)``: ``-(lam_p + S_c lam_f)``, ``(W lam)_e . dR_e/df_e``
+        (complex step in the factor), ``lam_i . (c_i (x_i - target_i) - R_i)``."""
+        x = np.asarray(x, float).reshape(-1)
+        target = np.asarray(target, float).reshape(-1)
+        lam = np.asarray(lam, float).reshape(-1)
+        blend = self._blend(problem) if blend is None else blend
+        kernel = YeohKernel(problem, self.params)
+        bc, dofs = problem.bc, problem.dofs
+        if Re is None:
+            Re = kernel.evaluate(x, tangent=False)[0]
+        lam_f = bc.homogenize(lam)
+        t_bar = np.zeros_like(lam)
+        t_bar[bc.fixed] = -lam[bc.fixed]
+        lam_w = lam_f if blend is None else blend.weighted(lam_f)
         h = COMPLEX_STEP
         dR_df = YeohKernel(problem, self.params, problem.stiffening + 1j * h).evaluate(
             x, tangent=False)[0].imag / h
-        f_bar = -np.einsum("ea,ea->e", lam_w[eqs.dofs], dR_df)
+        f_bar = np.einsum("ea,ea->e", lam_w[dofs], dR_df)
         s_bar = np.zeros(problem.n_nodes)
         if blend is not None:
-            lam_p = lam_p + blend.diag * lam
-            R = assemble_vector(eqs.dofs, Re, x.size)
-            s_bar = -(lam * (np.repeat(blend.c, 2) * (x - u) - R)).reshape(-1, 2).sum(axis=1)
-        return lam_p.reshape(-1, 2), f_bar, s_bar
+            t_bar -= blend.diag * lam_f
+            R = assemble_vector(dofs, Re, x.size)
+            s_bar = (lam_f * (np.repeat(blend.c, 2) * (x - target) - R)).reshape(-1, 2).sum(axis=1)
+        return t_bar, f_bar, s_bar
 
     @staticmethod
     def _forcing(history: list[float], target: float) -> float:

@@ -21,6 +21,7 @@ from tofsi.scene import load_scene
 COMMANDS = {
     "mesh": "build the scene's mesh; print sizes; write the mesh and a picture",
     "move": "mesh-motion study: move the mesh with the scene's mover; report quality",
+    "solve": "forward analysis of the scene's design with the effects the scene enables",
     "study": "parametric sweep (stiffening factors, A20, kappa, increments, mesh size) to a CSV and a plot",
 }
 

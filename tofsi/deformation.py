@@ -14,7 +14,10 @@ The motion is a displacement of every node of the solid elements:
 * ``pressure`` -- a cantilever clamped on the channel walls under a uniform
   pressure on its upstream (left-facing) faces, solved with plane-strain
   elasticity on the solid and scaled so the largest displacement is
-  ``tip_displacement``.
+  ``tip_displacement``;
+* ``fsi`` -- the structure's displacement under the flow (Navier-Stokes with
+  Brinkman friction in the solid, the total-stress load), scaled to
+  ``tip_displacement`` unless ``scale = false``.
 """
 
 from __future__ import annotations
@@ -94,7 +97,26 @@ def cantilever_under_pressure(mesh: StructuredQuadMesh, clamped_sides, poisson_r
     return u * (tip_displacement / peak)
 
 
-def prescribed_motion(mesh: StructuredQuadMesh, deformation, structure) -> np.ndarray:
+def structure_under_flow(mesh: StructuredQuadMesh, structure, fluid, deformation) -> np.ndarray:
+    """Displacement ``(n, 2)`` of the solid nodes under the flow (one-way coupled solve)."""
+    from tofsi.physics.flow import Flow
+    from tofsi.physics.structure import Structure
+    rho = (mesh.region == SOLID).astype(float)
+    flow = Flow(mesh, fluid)
+    w, _ = flow.solve(rho=rho)
+    u = Structure(mesh, structure, flow).solve(w, None, rho).reshape(-1, 2)
+    out = np.zeros_like(u)
+    solid = mesh.nodes_of(SOLID)
+    out[solid] = u[solid]
+    if deformation.scale:
+        peak = np.max(np.linalg.norm(out, axis=1))
+        if peak == 0.0:
+            raise InputError("deformation.mode", "fsi", "the flow does not load the solid")
+        out *= deformation.tip_displacement / peak
+    return out
+
+
+def prescribed_motion(mesh: StructuredQuadMesh, deformation, structure, fluid=None) -> np.ndarray:
     """Displacement ``(n, 2)`` of the solid nodes (zero elsewhere) for a scene's deformation."""
     solid_nodes = mesh.nodes_of(SOLID)
     if solid_nodes.size == 0:
@@ -111,7 +133,9 @@ def prescribed_motion(mesh: StructuredQuadMesh, deformation, structure) -> np.nd
     elif mode == "pressure":
         u = cantilever_under_pressure(mesh, structure.clamped, structure.poisson_ratio,
                                       deformation.tip_displacement)
+    elif mode == "fsi":
+        u = structure_under_flow(mesh, structure, fluid, deformation)
     else:
         raise InputError("deformation.mode", mode,
-                         "allowed here: 'translation', 'rotation', 'bending', 'pressure'")
+                         "allowed here: 'translation', 'rotation', 'bending', 'pressure', 'fsi'")
     return u

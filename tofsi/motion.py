@@ -38,10 +38,10 @@ def boundary_nodes(mesh: StructuredQuadMesh) -> np.ndarray:
 
 
 @lru_cache(maxsize=4)
-def _mesh_and_motion(geometry, mesh_settings, deformation, structure):
+def _mesh_and_motion(geometry, mesh_settings, deformation, structure, fluid):
     """Mesh and structure motion, shared by runs that differ only in the mover (studies)."""
     mesh = build_mesh(geometry, mesh_settings)
-    motion = prescribed_motion(mesh, deformation, structure)
+    motion = prescribed_motion(mesh, deformation, structure, fluid)
     motion.setflags(write=False)
     return mesh, motion
 
@@ -50,7 +50,7 @@ def motion_setup(scene, prescribed: np.ndarray | None = None) -> MotionSetup:
     """Mesh, mover problem and prescribed motion of a mesh-motion scene."""
     if prescribed is None:
         mesh, prescribed = _mesh_and_motion(scene.geometry, scene.mesh, scene.deformation,
-                                            scene.structure)
+                                            scene.structure, scene.fluid if scene.deformation.mode == "fsi" else None)
     else:
         mesh = build_mesh(scene.geometry, scene.mesh)
     moving = np.flatnonzero(mesh.region != SOLID)

@@ -113,3 +113,23 @@ def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool
         fig.suptitle(title)
     save(fig, path)
     return True
+
+
+def plot_nodal(path, points, quads, values, title="", label="", cmap="viridis", grey=None,
+               outline=None, width=8.0) -> None:
+    """A nodal field on quads (two Gouraud-shaded triangles each), solid elements in grey."""
+    from matplotlib.tri import Triangulation
+    span = np.ptp(points, axis=0)
+    fig, ax = plt.subplots(figsize=(width, width * span[1] / span[0] + 0.6), dpi=110)
+    tris = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    mesh = ax.tripcolor(Triangulation(points[:, 0], points[:, 1], tris), values, shading="gouraud", cmap=cmap)
+    fig.colorbar(mesh, ax=ax, label=label, shrink=0.8)
+    if grey is not None and np.any(grey):
+        ax.add_collection(PolyCollection(points[quads[grey]], facecolors="0.6", edgecolors="none", alpha=0.85))
+    if outline is not None and len(outline):
+        ax.add_collection(LineCollection(points[outline], colors="red", linewidths=1.0))
+    ax.set_aspect("equal")
+    ax.set_title(title)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    save(fig, path)

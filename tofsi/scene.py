@@ -21,7 +21,8 @@ from typing import Any, Mapping
 import movers
 from tofsi.config import build, coerce, option
 from tofsi.errors import InputError
-from tofsi.settings import DesignSettings, FluidSettings, OptimizerSettings, StructureSettings
+from tofsi.settings import (CoupledSettings, DesignSettings, FluidSettings, OptimizerSettings,
+                            StructureSettings)
 
 Rectangle = tuple[float, float, float, float]
 
@@ -135,6 +136,7 @@ class Scene:
     structure: StructureSettings
     design: DesignSettings
     optimizer: OptimizerSettings
+    coupled: CoupledSettings
     source: str = ""
 
     @property
@@ -144,7 +146,7 @@ class Scene:
 
 _TABLES = {"geometry": Geometry, "mesh": MeshSettings, "deformation": Deformation,
            "fluid": FluidSettings, "structure": StructureSettings, "design": DesignSettings,
-           "optimizer": OptimizerSettings}
+           "optimizer": OptimizerSettings, "coupled": CoupledSettings}
 _TOP = {"name", "description", "effects", "mover", *_TABLES}
 
 

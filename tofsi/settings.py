@@ -52,6 +52,19 @@ class StructureSettings:
 
 
 @dataclass(frozen=True)
+class CoupledSettings:
+    """The two-way coupled solve (table ``[coupled]``)."""
+
+    method: str = option("partitioned", choices=("partitioned", "monolithic"),
+                         doc="fixed point with Aitken relaxation, or Newton on the 3x3 block Jacobian "
+                             "(needs a mover with a residual form)")
+    tol: float = option(1e-9, gt=0, lt=1, doc="relative change of u (partitioned) or residual "
+                                               "per block (monolithic)")
+    max_iter: int = option(60, ge=1, le=10_000, doc="coupling iterations")
+    relaxation: float = option(0.5, gt=0, le=1, doc="first Aitken relaxation factor")
+
+
+@dataclass(frozen=True)
 class DesignSettings:
     """Density design: objective, volume, filter and projection (table ``[design]``)."""
 

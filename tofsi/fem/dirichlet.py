@@ -14,6 +14,7 @@ use the same operator, homogeneous for the adjoint.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from tofsi.fem.assembly import SparsePattern
 
@@ -23,16 +24,31 @@ class DirichletOperator:
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, size: int, fixed: np.ndarray):
         self.size = size
+        self.pattern_rows, self.pattern_cols = rows, cols
         self.fixed = np.unique(np.asarray(fixed, dtype=np.int64))
         self.is_fixed = np.zeros(size, dtype=bool)
         self.is_fixed[self.fixed] = True
         self.free = np.flatnonzero(~self.is_fixed)
         self.keep = ~(self.is_fixed[rows][:, :, None] | self.is_fixed[cols][:, None, :])
+        self.keep_rows = ~self.is_fixed[rows][:, :, None]
         self.pattern = SparsePattern(rows, cols, (size, size), extra_diagonal=self.fixed)
+        self._row_pattern = None
 
     def matrix(self, Ke: np.ndarray):
         """``K_bc`` from element matrices ``(E, a, b)``."""
         return self.pattern.assemble(np.where(self.keep, Ke, 0.0), diagonal=1.0)
+
+    def row_matrix(self, Ke: np.ndarray):
+        """The true Jacobian of ``[P_f K x; x_p - g]``: fixed rows identity, free rows keep
+        their fixed columns ``K_fp`` (needed where ``g`` depends on other fields)."""
+        if self._row_pattern is None:
+            self._row_pattern = SparsePattern(self.pattern_rows, self.pattern_cols, (self.size, self.size),
+                                              extra_diagonal=self.fixed)
+        return self._row_pattern.assemble(np.where(self.keep_rows, Ke, 0.0), diagonal=1.0)
+
+    def free_rows(self, M):
+        """``M`` with the rows of fixed dofs zeroed (a block coupling into this field)."""
+        return sp.diags((~self.is_fixed).astype(float)) @ M
 
     def homogenize(self, r: np.ndarray) -> np.ndarray:
         """A copy of ``r`` with the fixed entries set to zero."""

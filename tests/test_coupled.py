@@ -1,0 +1,149 @@
+"""Coupled solves, the mesh-motion block's derivatives, and effects that cost nothing when off."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import tofsi
+from tofsi.coupled import CoupledModel
+from tofsi.errors import InputError
+from tofsi.physics.motion_block import MeshMotion, solid_indicator
+
+from conftest import load, scene_path
+
+SOFT = ["mesh.h_min=0.05", "mesh.h_max=0.05", "effects.coupling=two-way", "mover.name=yeoh",
+        "structure.youngs_modulus=5e5", "fluid.alpha_max=1e4", "coupled.tol=1e-10"]
+
+
+def soft_model(method, *extra):
+    scene = load("beam_in_channel_optimization", *SOFT, f"coupled.method={method}", *extra)
+    model = CoupledModel(scene)
+    design = model.design_elements
+    c = model.mesh.centroids[design]
+    rho = model.densities(((np.abs(c[:, 0] - 1.0) < 0.1) & (c[:, 1] < 0.6)).astype(float))
+    return model, rho
+
+
+def test_partitioned_and_monolithic_agree_and_newton_is_quadratic():
+    part, rho = soft_model("partitioned")
+    mono, _ = soft_model("monolithic")
+    a, b = part.solve(rho), mono.solve(rho)
+    assert np.abs(a.x).max() > 1e-3                        # the mesh visibly moves
+    for f in ("u", "x", "w"):
+        ref = getattr(a, f)
+        assert np.abs(getattr(b, f) - ref).max() <= 1e-8 * np.abs(ref).max()
+    r = [max(h["S"], h["D"], h["F"]) for h in b.reports["coupling"]["history"]]
+    # quadratic: r_{k+1} <= C r_k^2 (C = 10, the residuals are scaled to order 1) above round-off
+    steps = [(r[k], r[k + 1]) for k in range(len(r) - 1) if r[k] < 1e-2]
+    assert steps and all(after <= 10 * before**2 + 1e-13 for before, after in steps), r
+    assert r[-1] <= 1e-10
+
+
+def test_monolithic_refuses_a_path_dependent_mover():
+    with pytest.raises(InputError) as err:
+        soft_model("monolithic", "mover.name=spring")
+    assert err.value.key == "coupled.method"
+
+
+RESIDUAL_MOVERS = [("yeoh", []), ("linear", []), ("spring", ["mover.spring.diagonals=both",
+                                                             "mover.spring.increments=1"])]
+
+
+@pytest.mark.parametrize("design", [False, True], ids=["explicit", "blended"])
+@pytest.mark.parametrize("name,extra", RESIDUAL_MOVERS, ids=[m for m, _ in RESIDUAL_MOVERS])
+def test_mesh_motion_blocks_match_central_differences(name, extra, design):
+    scene_name = "beam_in_channel_optimization" if design else "beam_in_channel"
+    scene = load(scene_name, "mesh.h_min=0.1", "mesh.h_max=0.2", f"mover.name={name}", *extra,
+                 "mover.layers=[1.7]")
+    from tofsi.channel import build_mesh
+    mesh = build_mesh(scene.geometry, scene.mesh)
+    motion = MeshMotion(mesh, scene)
+    rng = np.random.default_rng(41)
+    rho = rng.uniform(0.05, 0.95, mesh.n_elements)
+    u = 0.002 * rng.normal(size=2 * mesh.n_nodes)
+    x = 0.002 * rng.normal(size=2 * mesh.n_nodes)      # small: the notch's legs are 0.025 wide
+    D = lambda x_=x, u_=u, r_=rho: motion.residual(x_, u_, r_)[0]
+    _, Dx = motion.residual(x, u, rho)
+    Du = motion.structure_partial(rho)
+    h = 1e-6
+    for _ in range(2):
+        d = rng.normal(size=x.size)
+        fd = (D(x_=x + h * d) - D(x_=x - h * d)) / (2 * h)
+        assert np.linalg.norm(Dx @ d - fd) <= 1e-6 * np.linalg.norm(fd)
+        fd = (D(u_=u + h * d) - D(u_=u - h * d)) / (2 * h)
+        assert np.linalg.norm(Du @ d - fd) <= 1e-6 * max(np.linalg.norm(fd), 1e-12)
+        if design:
+            lam = rng.normal(size=x.size)
+            dr = rng.normal(size=rho.size)
+            fd = lam @ (D(r_=rho + h * dr) - D(r_=rho - h * dr)) / (2 * h)
+            _, rho_bar = motion.partials_transpose(x, u, rho, lam)
+            assert rho_bar @ dr == pytest.approx(fd, rel=1e-6)
+
+
+def test_solid_indicator_is_one_next_to_solid_and_smooth():
+    quads = np.array([[0, 1, 4, 3], [1, 2, 5, 4]])
+    s, ds = solid_indicator(np.array([1.0, 0.3]), quads, 6)
+    np.testing.assert_allclose(s, [1, 1, 0.3, 1, 1, 0.3])
+    rng = np.random.default_rng(2)
+    rho = rng.uniform(0, 1, 2)
+    d = rng.normal(size=2)
+    h = 1e-7
+    fd = (solid_indicator(rho + h * d, quads, 6)[0] - solid_indicator(rho - h * d, quads, 6)[0]) / (2 * h)
+    np.testing.assert_allclose(solid_indicator(rho, quads, 6)[1] @ d, fd, rtol=1e-7)
+
+
+def test_a_mesh_motion_scene_never_assembles_a_fluid_matrix(monkeypatch):
+    import tofsi.physics.flow as flow_module
+    calls = []
+    monkeypatch.setattr(flow_module, "fluid_element", lambda *a, **k: calls.append(1))
+    from tofsi.motion import run_move
+    run_move(load("foil_in_channel"))
+    assert calls == []
+    with pytest.raises(InputError):
+        CoupledModel(load("foil_in_channel")).solve(None)
+
+
+def test_a_one_way_scene_never_calls_the_mover(monkeypatch):
+    import movers.yeoh
+    monkeypatch.setattr(movers.yeoh.YeohMover, "move", lambda *a, **k: pytest.fail("mover called"))
+    scene = load("beam_in_channel_optimization", "mesh.h_min=0.1", "mesh.h_max=0.1", "mover.name=yeoh")
+    model = CoupledModel(scene)
+    assert model.motion is None
+    state = model.solve(model.densities())
+    assert state.x is None and state.u is not None
+
+
+def test_stokes_effect_drops_inertia_and_structure_off_drops_the_structure():
+    scene = load("beam_in_channel_optimization", "mesh.h_min=0.1", "mesh.h_max=0.1",
+                 "effects.fluid=stokes", "effects.structure=none")
+    model = CoupledModel(scene)
+    assert model.structure is None and model.flow.density == 0.0
+    state = model.solve(model.densities())
+    assert state.u is None and state.reports["flow"]["newton_iterations"] == 1
+
+
+def test_fsi_deformation_bends_the_beam_downstream_to_the_requested_tip():
+    scene = load("beam_in_channel", "deformation.mode=fsi", "mesh.h_min=0.025", "mesh.h_max=0.1")
+    from tofsi.motion import motion_setup
+    setup = motion_setup(scene)
+    u = setup.prescribed
+    assert np.max(np.linalg.norm(u, axis=1)) == pytest.approx(0.15, rel=1e-12)
+    tip = np.argmax(np.linalg.norm(u, axis=1))
+    assert u[tip, 0] > 0 and setup.mesh.points[tip, 1] == pytest.approx(0.5)
+
+
+def test_tofsi_solve_writes_fields_and_figures(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "solve", str(scene_path("beam_in_channel_optimization")),
+                          "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1", "--output", str(tmp_path), "--json"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    figures = json.loads(run.stdout)
+    assert figures["converged"] and figures["pressure_drop"] > 0 and figures["compliance"] > 0
+    names = {p.name for p in tmp_path.iterdir()}
+    assert {"solution.vtu", "solution_velocity.png", "solution_pressure.png", "solve.json"} <= names
+    import meshio
+    m = meshio.read(tmp_path / "solution.vtu")
+    assert {"velocity", "pressure", "structure_displacement"} <= set(m.point_data)

@@ -1,0 +1,141 @@
+"""The mesh-motion block D(x; u, rho): a mover between the structure and the fluid mesh.
+
+Two forms, chosen by the scene:
+
+* explicit interface (scenes without a design region): the non-solid quads
+  move; every solid node follows the structure (``x = u``) and every channel
+  boundary node stays (``x = 0``);
+* density-blended (design scenes): every quad moves, the channel boundary
+  stays, and an interior node ``i`` blends mover and structure with the solid
+  indicator ``s_i = 1 - prod_{e at i} (1 - rho_e)`` (see :mod:`movers.blend`):
+  ``s_i = 1`` as soon as one neighbouring element is solid, 0 when all are
+  fluid, smooth in between, so the form reduces to the explicit one for 0/1
+  densities and is differentiable in rho.
+
+Layered stiffening factors (``mover.layers``) apply to the element layers
+counted from the interface of the fixed solid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+import movers
+from movers.base import MotionProblem
+from tofsi.layers import element_layers, stiffening_field
+from tofsi.mesh import SIDES, SOLID
+
+
+def boundary_nodes(mesh) -> np.ndarray:
+    return np.unique(np.concatenate([mesh.side_nodes(s) for s in SIDES]))
+
+
+def solid_indicator(rho: np.ndarray, quads: np.ndarray, n_nodes: int):
+    """``s (n,) = 1 - prod_{e at i}(1 - rho_e)`` and ``ds/drho`` as a sparse ``(n, E)`` matrix."""
+    rho = np.asarray(rho, dtype=float)
+    one_minus = 1.0 - rho
+    E = len(rho)
+    nodes = quads.ravel()
+    elems = np.repeat(np.arange(E), quads.shape[1])
+    solid = one_minus[elems] <= 0.0
+    log_terms = np.log(np.where(solid, 1.0, one_minus[elems]))
+    log_sum = np.bincount(nodes, weights=log_terms, minlength=n_nodes)
+    n_solid = np.bincount(nodes, weights=solid.astype(float), minlength=n_nodes)
+    s = 1.0 - np.where(n_solid > 0, 0.0, np.exp(log_sum))
+    # d s_i / d rho_e = prod over the other elements at i of (1 - rho)
+    others_solid = n_solid[nodes] - solid
+    others = np.where(others_solid > 0, 0.0, np.exp(log_sum[nodes] - log_terms))
+    return s, sp.csr_matrix((others, (nodes, elems)), shape=(n_nodes, E))
+
+
+class MeshMotion:
+    """A scene's mover applied to its mesh, with the maps to and from the other fields."""
+
+    def __init__(self, mesh, scene):
+        self.mesh = mesh
+        self.mover = movers.mover_class(scene.mover.name)(scene.mover.options)
+        self.blended = scene.has_design
+        boundary = boundary_nodes(mesh)
+        solid = mesh.region == SOLID
+        layer = element_layers(mesh.incidence, mesh.interface_nodes, ~solid,
+                               n_layers=max(len(scene.mover.layers), 1))
+        factors = stiffening_field(layer, scene.mover.layers)
+        if self.blended:
+            moving = np.arange(mesh.n_elements)
+            fixed = boundary
+        else:
+            moving = np.flatnonzero(~solid)
+            fixed = np.union1d(mesh.nodes_of(SOLID), boundary)
+        self.moving = moving
+        self.follows = np.setdiff1d(fixed if not self.blended else np.arange(mesh.n_nodes), boundary)
+        self.base = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
+        self._blend_cache = None
+
+    # ---- maps between fields ------------------------------------------------------
+    def problem(self, rho=None) -> MotionProblem:
+        """The mover's problem for densities ``rho`` (blended form) or the fixed regions."""
+        if not self.blended:
+            return self.base
+        s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
+        return self.base.with_data(blend=s)
+
+    def target(self, u: np.ndarray) -> np.ndarray:
+        """The motion the mover is given ``(n, 2)``: the structure's where nodes follow it, else 0."""
+        t = np.zeros((self.mesh.n_nodes, 2))
+        t[self.follows] = np.asarray(u).reshape(-1, 2)[self.follows]
+        return t
+
+    def target_transpose(self, t_bar: np.ndarray) -> np.ndarray:
+        """Adjoint of :meth:`target`: ``(2n,)`` on ``u``."""
+        u_bar = np.zeros((self.mesh.n_nodes, 2))
+        u_bar[self.follows] = np.asarray(t_bar).reshape(-1, 2)[self.follows]
+        return u_bar.ravel()
+
+    def density_transpose(self, rho, f_bar: np.ndarray, s_bar: np.ndarray) -> np.ndarray:
+        """Chain ``(stiffening_bar, blend_bar)`` to ``rho_bar (E,)`` (stiffening does not depend on rho)."""
+        if not self.blended:
+            return np.zeros(self.mesh.n_elements)
+        _, ds = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
+        return ds.T @ s_bar
+
+    # ---- solving and derivatives ---------------------------------------------------------
+    def solve(self, u, rho=None, progress=None):
+        """Mesh displacement ``x (n, 2)`` and the mover's result."""
+        problem = self.problem(rho)
+        result = self.mover.move(problem, self.target(u), progress)
+        result.problem = problem
+        return result.displacement, result
+
+    def vjp(self, result, x_bar, rho=None):
+        """``(u_bar (2n,), rho_bar (E,))`` for ``x_bar`` on the mesh displacement."""
+        t_bar, f_bar, s_bar = self.mover.vjp(result.problem, result, x_bar)
+        return self.target_transpose(t_bar), self.density_transpose(rho, f_bar, s_bar)
+
+    @property
+    def has_residual(self) -> bool:
+        return not self.mover.path_dependent
+
+    def residual(self, x, u, rho=None):
+        """``D (2n,)`` and ``D_x`` (true Jacobian) for residual movers."""
+        problem = self.problem(rho)
+        return self.mover.residual(problem, x, self.target(u))
+
+    def structure_partial(self, rho=None) -> sp.csr_matrix:
+        """``D_u`` (2n x 2n): ``-(P_p + S_c)`` restricted to the nodes that follow the structure."""
+        problem = self.problem(rho)
+        diag = np.zeros(2 * self.mesh.n_nodes)
+        follow_dofs = np.ravel(2 * self.follows[:, None] + np.arange(2))
+        fixed = problem.bc.is_fixed
+        diag[follow_dofs[fixed[follow_dofs]]] = -1.0
+        if self.blended:
+            blend = self.mover._blend(problem)
+            free = follow_dofs[~fixed[follow_dofs]]
+            diag[free] = -blend.diag[free]
+        return sp.diags(diag).tocsr()
+
+    def partials_transpose(self, x, u, rho, lam):
+        """``lam^T D_u`` (2n,) and ``lam^T D_rho`` (E,) for residual movers (no solve)."""
+        problem = self.problem(rho)
+        t_bar, f_bar, s_bar = self.mover.residual_partials(problem, x, self.target(u), lam)
+        return self.target_transpose(t_bar), self.density_transpose(rho, f_bar, s_bar)
