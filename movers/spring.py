@@ -9,6 +9,11 @@ linearize the angle change (sin d(theta) ~ d(theta)).
 
 Layered stiffening multiplies both the lineal and the torsional stiffness of
 a quad's triangles by the quad's factor.
+
+The selective choice depends on the motion, so as a function of the design
+the map is piecewise smooth: its vector-Jacobian product holds the choice
+fixed (exact between switches). Optimizations that need a smooth map use a
+fixed triangulation.
 """
 
 from __future__ import annotations

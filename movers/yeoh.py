@@ -43,6 +43,7 @@ from tofsi.fem.quadrature import gauss_square
 from tofsi.linalg import RecyclingSolver  # noqa: F401  (type of the solver argument)
 
 log = logging.getLogger(__name__)
+ROUND_OFF = 1e3 * np.finfo(float).eps      # attainable |R| relative to the forces' size
 
 
 @dataclass(frozen=True)
@@ -316,8 +317,9 @@ class YeohMover(Mover):
             history.append(norm)
             if not np.isfinite(norm):
                 return None, None, history, "non-finite residual"
-            reactions = np.linalg.norm(assemble_vector(eqs.dofs, Re, x.size)[bc.fixed])
-            target = p.newton_tol * max(scale, reactions)
+            forces = np.linalg.norm(assemble_vector(eqs.dofs, Re, x.size))   # reactions, and the
+            target = max(p.newton_tol * max(scale, forces),  # blended rows' balancing forces,
+                         ROUND_OFF * np.sqrt(x.size) * forces)  # but never below round-off
             if norm <= target:
                 return x, (Re, Ke), history, ""
             if it == p.max_newton:

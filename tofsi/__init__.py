@@ -3,4 +3,11 @@
 from tofsi.scene import Scene, load_scene
 
 __version__ = "0.1.0"
-__all__ = ["Scene", "load_scene", "__version__"]
+__all__ = ["Problem", "Scene", "load_scene", "__version__"]
+
+
+def __getattr__(name):
+    if name == "Problem":                    # imported on first use: it pulls in the physics
+        from tofsi.problem import Problem
+        return Problem
+    raise AttributeError(name)

@@ -49,6 +49,9 @@ class StructureSettings:
     simp_penalty: float = option(3.0, ge=1, le=10, doc="SIMP exponent p in E = Emin + rho^p (E0 - Emin)")
     clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
                                       doc="channel sides where the structure is clamped")
+    load_exponent: float = option(1.0, ge=1, le=10,
+                                  doc="fluid load weight rho^k (1: Lundgaard et al.; the SIMP "
+                                      "exponent keeps gray elements' displacement bounded)")
 
 
 @dataclass(frozen=True)

@@ -31,22 +31,35 @@ def boundary_nodes(mesh) -> np.ndarray:
     return np.unique(np.concatenate([mesh.side_nodes(s) for s in SIDES]))
 
 
-def solid_indicator(rho: np.ndarray, quads: np.ndarray, n_nodes: int):
-    """``s (n,) = 1 - prod_{e at i}(1 - rho_e)`` and ``ds/drho`` as a sparse ``(n, E)`` matrix."""
-    rho = np.asarray(rho, dtype=float)
-    one_minus = 1.0 - rho
-    E = len(rho)
+def node_element_table(quads: np.ndarray, n_nodes: int) -> np.ndarray:
+    """Elements around each node ``(n, m)``, padded with -1."""
     nodes = quads.ravel()
-    elems = np.repeat(np.arange(E), quads.shape[1])
-    solid = one_minus[elems] <= 0.0
-    log_terms = np.log(np.where(solid, 1.0, one_minus[elems]))
-    log_sum = np.bincount(nodes, weights=log_terms, minlength=n_nodes)
-    n_solid = np.bincount(nodes, weights=solid.astype(float), minlength=n_nodes)
-    s = 1.0 - np.where(n_solid > 0, 0.0, np.exp(log_sum))
-    # d s_i / d rho_e = prod over the other elements at i of (1 - rho)
-    others_solid = n_solid[nodes] - solid
-    others = np.where(others_solid > 0, 0.0, np.exp(log_sum[nodes] - log_terms))
-    return s, sp.csr_matrix((others, (nodes, elems)), shape=(n_nodes, E))
+    elems = np.repeat(np.arange(len(quads)), quads.shape[1])
+    order = np.argsort(nodes, kind="stable")
+    nodes, elems = nodes[order], elems[order]
+    counts = np.bincount(nodes, minlength=n_nodes)
+    starts = np.cumsum(counts) - counts
+    table = np.full((n_nodes, counts.max()), -1, dtype=np.int64)
+    table[nodes, np.arange(nodes.size) - starts[nodes]] = elems
+    return table
+
+
+def solid_indicator(rho: np.ndarray, quads: np.ndarray, n_nodes: int):
+    """``s (n,) = 1 - prod_{e at i}(1 - rho_e)`` and ``ds/drho`` as a sparse ``(n, E)`` matrix.
+
+    A polynomial in rho, so smooth for any values (also slightly outside [0, 1]).
+    """
+    rho = np.asarray(rho, dtype=float)
+    table = node_element_table(quads, n_nodes)
+    valid = table >= 0
+    t = np.where(valid, 1.0 - rho[np.where(valid, table, 0)], 1.0)           # (n, m)
+    s = 1.0 - np.prod(t, axis=1)
+    ones = np.ones((n_nodes, 1))
+    before = np.cumprod(np.hstack([ones, t[:, :-1]]), axis=1)                # prod of t[:, :k]
+    after = np.cumprod(np.hstack([ones, t[:, :0:-1]]), axis=1)[:, ::-1]      # prod of t[:, k+1:]
+    others = before * after
+    rows = np.repeat(np.arange(n_nodes), table.shape[1])[valid.ravel()]
+    return s, sp.csr_matrix((others[valid], (rows, table[valid])), shape=(n_nodes, len(rho)))
 
 
 class MeshMotion:

@@ -4,11 +4,14 @@ Small-strain plane-strain elasticity on Q1, over the whole channel (unified
 domain): element moduli by SIMP, ``E_e = Emin + rho_e^p (E0 - Emin)``, on the
 reference mesh; clamped on the scene's channel sides. The load ``f`` is the
 fluid's total stress transferred in the density-weighted volume form of
-:mod:`tofsi.physics.fluid_load`, integrated on the moved mesh ``X + x``.
+:mod:`tofsi.physics.fluid_load` with weight ``Psi_e = rho_e^k``, integrated on
+the moved mesh ``X + x``. ``k = 1`` is Lundgaard et al.'s choice; since a
+gray element's displacement then grows like ``rho^(1 - p)`` as it empties,
+``k = p`` keeps it bounded (robust two-way coupling).
 
 Blocks for the coupled Newton and the adjoint: ``S_u = K_s`` (constrained),
-``S_w = -rho B``, ``S_x = -df/dx`` (complex step through the load kernel) and
-``S_rho = dK/drho u - df/drho``.
+``S_w = -Psi B``, ``S_x = -df/dx`` (complex step through the load kernel) and
+``S_rho = dK/drho u - Psi' B w``.
 """
 
 from __future__ import annotations
@@ -62,6 +65,14 @@ class Structure:
         return self._factor[1]
 
     # ---- fluid load --------------------------------------------------------------
+    def weight(self, rho) -> np.ndarray:
+        """Load weight ``Psi = rho^k`` per element."""
+        return np.asarray(rho, dtype=float) ** self.settings.load_exponent
+
+    def weight_derivative(self, rho) -> np.ndarray:
+        k = self.settings.load_exponent
+        return k * np.asarray(rho, dtype=float) ** (k - 1.0)
+
     def load_operators(self, x=None) -> np.ndarray:
         """``B_e`` on the mesh moved by ``x``."""
         return load_operator(self.flow.corners(x), self.flow.settings.viscosity)
@@ -69,7 +80,7 @@ class Structure:
     def load(self, w, x=None, rho=None, B=None) -> np.ndarray:
         """Fluid load ``f`` (2n,) [N/m] on the nodes."""
         B = self.load_operators(x) if B is None else B
-        fe = np.einsum("eab,eb->ea", B, w[self.flow.dofs]) * rho[:, None]
+        fe = np.einsum("eab,eb->ea", B, w[self.flow.dofs]) * self.weight(rho)[:, None]
         return assemble_vector(self.dofs, fe, self.size)
 
     # ---- residual and its partials -------------------------------------------------
@@ -83,8 +94,8 @@ class Structure:
         return self.solver(rho).solve(self.bc.homogenize(self.load(w, x, rho)))
 
     def fluid_partial(self, x, rho) -> sp.csr_matrix:
-        """``S_w = -rho B`` (2n x size of w)."""
-        B = self.load_operators(x) * -rho[:, None, None]
+        """``S_w = -Psi B`` (2n x size of w)."""
+        B = self.load_operators(x) * -self.weight(rho)[:, None, None]
         rows = np.broadcast_to(self.dofs[:, :, None], B.shape)
         cols = np.broadcast_to(self.flow.dofs[:, None, :], B.shape)
         return sp.csr_matrix((B.ravel(), (rows.ravel(), cols.ravel())), shape=(self.size, self.flow.size))
@@ -99,15 +110,16 @@ class Structure:
             Xc = Xe.astype(complex)
             Xc[:, j // 2, j % 2] += 1j * COMPLEX_STEP
             fe = np.einsum("eab,eb->ea", load_operator(Xc, self.flow.settings.viscosity), we)
-            vals[:, :, j] = -(fe.imag / COMPLEX_STEP) * rho[:, None]
+            vals[:, :, j] = -(fe.imag / COMPLEX_STEP) * self.weight(rho)[:, None]
         rows = np.broadcast_to(self.dofs[:, :, None], vals.shape)
         cols = np.broadcast_to(self.dofs[:, None, :], vals.shape)
         return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(self.size, self.size))
 
     def density_partial(self, u, w, x, rho) -> sp.csr_matrix:
-        """``S_rho`` (2n x E): ``E'(rho_e) K0_e u_e - B_e w_e``."""
+        """``S_rho`` (2n x E): ``E'(rho_e) K0_e u_e - Psi'(rho_e) B_e w_e``."""
         Ku = np.einsum("eab,eb->ea", self.K0, u[self.dofs]) * self.simp.derivative(rho)[:, None]
-        fe = np.einsum("eab,eb->ea", self.load_operators(x), w[self.flow.dofs])
+        fe = np.einsum("eab,eb->ea", self.load_operators(x), w[self.flow.dofs]) \
+            * self.weight_derivative(rho)[:, None]
         vals = Ku - fe
         E = vals.shape[0]
         return sp.csr_matrix((vals.ravel(), (self.dofs.ravel(), np.repeat(np.arange(E), 8))),

@@ -1,0 +1,167 @@
+"""Adjoint gradients: dot-product tests, Taylor tests and central differences, with teeth.
+
+Tolerances: Taylor remainder rate > 1.9 (a missing term shows as ~1);
+central-difference relative error < 1e-6 for Stokes and < 1e-5 for
+Navier-Stokes (forward solves are converged to round-off here).
+"""
+
+import numpy as np
+import pytest
+
+import tofsi
+from adjoint import Adjoint
+from adjoint.checks import central_difference, relative_error, taylor_test
+from tofsi.design import DensityFilter, DesignMap, Projection
+from tofsi.errors import NumericalError
+
+from conftest import load
+
+BASE = ["mesh.h_min=0.1", "mesh.h_max=0.1", "fluid.alpha_max=1e3", "fluid.newton_tol=1e-13",
+        "design.filter_radius=0.15", "structure.youngs_modulus=2e4", "coupled.tol=1e-12",
+        "mover.yeoh.newton_tol=1e-13", "mover.linear.linear_tol=1e-14", "mover.spring.linear_tol=1e-14"]
+MOVERS = {"yeoh": ["mover.name=yeoh"], "linear": ["mover.name=linear"],
+          "spring-1": ["mover.name=spring", "mover.spring.increments=1", "mover.spring.diagonals=both"],
+          "spring-3": ["mover.name=spring", "mover.spring.increments=3", "mover.spring.diagonals=both"]}
+# (selective diagonals are re-chosen from trial increments, so the map jumps where a choice
+#  flips: its gradient is exact between switches, but a Taylor test may straddle one)
+SHARP = ["design.filter_radius=0.01", "design.beta=[0.0]"]        # identity map: rho = gamma
+
+
+def problem(*overrides):
+    return tofsi.Problem(load("beam_in_channel_optimization", *BASE, *overrides))
+
+
+def check_total_derivative(P, gamma, direction, cd_tol, eps0=1e-2):
+    f0, df = P.evaluate(gamma)
+    fun = lambda g: P.evaluate(g)[0]
+    t = taylor_test(fun, gamma, df, direction, eps0=eps0, steps=4, f0=f0)
+    cd = central_difference(fun, gamma, direction, 1e-2 * eps0)
+    return t, relative_error(cd, df @ direction), f0
+
+
+def design_and_direction(P, sharp, seed=0):
+    rng = np.random.default_rng(seed)
+    if sharp:            # densities exactly 0 and 1 (a post on the clamped wall, no floating
+        c = P.model.mesh.centroids[P.map.design]        # islands); directions stay in [0, 1]
+        gamma = ((np.abs(c[:, 0] - 1.0) < 0.25) & (c[:, 1] < 0.45)).astype(float)
+        d = np.where(gamma > 0.5, -1.0, 1.0) * rng.uniform(0.2, 1.0, P.n_design)
+    else:
+        gamma = rng.uniform(0.05, 0.95, P.n_design)
+        d = rng.normal(size=P.n_design)
+    return gamma, d
+
+
+@pytest.mark.parametrize("sharp", [False, True], ids=["random design", "0/1 densities"])
+@pytest.mark.parametrize("fluid", ["stokes", "navier-stokes"])
+@pytest.mark.parametrize("objective", ["compliance", "dissipation", "pressure-drop"])
+def test_one_way_total_derivatives(objective, fluid, sharp):
+    P = problem(f"design.objective={objective}", f"effects.fluid={fluid}", *(SHARP if sharp else []))
+    gamma, d = design_and_direction(P, sharp)
+    t, err, _ = check_total_derivative(P, gamma, d, None, eps0=1e-3 if sharp else 1e-2)
+    assert t.min_rate > 1.9, t
+    assert err < (1e-6 if fluid == "stokes" else 1e-5), err
+
+
+@pytest.mark.parametrize("sharp", [False, True], ids=["random design", "0/1 densities"])
+@pytest.mark.parametrize("mover", list(MOVERS))
+@pytest.mark.parametrize("objective", ["compliance", "dissipation", "pressure-drop"])
+def test_two_way_total_derivatives(objective, mover, sharp):
+    P = problem(f"design.objective={objective}", "effects.coupling=two-way", *MOVERS[mover],
+                "structure.load_exponent=3", *(SHARP if sharp else []))
+    gamma, d = design_and_direction(P, sharp, seed=1)
+    t, err, _ = check_total_derivative(P, gamma, d, None, eps0=1e-3 if sharp else 1e-2)
+    assert t.min_rate > 1.9, t
+    assert err < 1e-5, err
+
+
+@pytest.mark.parametrize("mover", ["yeoh", "linear", "spring-1"])
+def test_monolithic_adjoint_matches_central_differences(mover):
+    P = problem("effects.coupling=two-way", "coupled.method=monolithic", "effects.fluid=stokes",
+                *MOVERS[mover])
+    gamma, d = design_and_direction(P, False, seed=2)
+    t, err, _ = check_total_derivative(P, gamma, d, None)
+    assert Adjoint(P.model, P.solve(gamma)).method() == "monolithic"
+    assert t.min_rate > 1.9 and err < 1e-6, (t, err)
+
+
+def test_volume_constraint_needs_no_solve_and_is_exact():
+    P = problem()
+    gamma, d = design_and_direction(P, False)
+    g, dg = P.constraints(gamma)
+    fd = central_difference(lambda x: P.constraints(x)[0][0], gamma, d, 1e-5)
+    assert relative_error(fd, dg[0] @ d) < 1e-7          # O(h^2) and round-off at h = 1e-5
+    adj = Adjoint(P.model, P.solve(gamma))
+    adj.gradient(P.volume)
+    assert adj.reports == []                                    # no adjoint solve was made
+
+
+@pytest.mark.parametrize("block", ["S_x", "F_x"])
+def test_dropping_a_coupling_block_breaks_the_taylor_test(block, monkeypatch):
+    """The check has teeth: without S_x (or F_x) the remainder falls only like eps."""
+    P = problem("effects.coupling=two-way", *MOVERS["yeoh"], "structure.youngs_modulus=3e3")
+    gamma, d = design_and_direction(P, False, seed=3)
+    import adjoint.blocks
+    original = getattr(adjoint.blocks.Blocks, block)
+    monkeypatch.setattr(adjoint.blocks.Blocks, block, lambda self: 0 * original(self))
+    t, err, _ = check_total_derivative(P, gamma, d, None)
+    assert t.min_rate < 1.3, t                                  # first order: a term is missing
+    assert not (t.min_rate > 1.9)                               # the guard of the tests above fails
+
+
+def test_adjoint_refuses_an_unconverged_state():
+    P = problem()
+    state = P.solve(P.initial_design())
+    state.converged = False
+    with pytest.raises(NumericalError, match="not converged"):
+        Adjoint(P.model, state)
+
+
+def test_newton_iteration_limit_raises_instead_of_returning_a_gradient():
+    P = problem("fluid.newton_max_iter=1", "fluid.continuation_steps=1", "fluid.density=50.0")
+    with pytest.raises(NumericalError):
+        P.evaluate(P.initial_design())
+
+
+# ---- dot-product tests for every transposed operator ------------------------------------
+def _dot(forward, transpose, n_in, n_out, seed=5):
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(size=n_in), rng.normal(size=n_out)
+    return forward(a) @ b, a @ transpose(b)
+
+
+def test_filter_projection_and_design_map_transposes():
+    rng = np.random.default_rng(4)
+    c = rng.uniform(0, 1, (60, 2))
+    F = DensityFilter(c, 0.3)
+    lhs, rhs = _dot(F.forward, F.transpose, 60, 60)
+    assert lhs == pytest.approx(rhs, rel=1e-13)
+    proj = Projection(8.0, 0.4)
+    x = rng.uniform(0, 1, 60)
+    lhs, rhs = _dot(lambda a: proj.derivative(x) * a, lambda b: proj.transpose(x, b), 60, 60)
+    assert lhs == pytest.approx(rhs, rel=1e-13)
+    P = problem()
+    M = DesignMap(P.model.mesh, 0.2, 4.0)
+    g = rng.uniform(0, 1, M.size)
+    h = 1e-6
+    Jv = lambda a: (M.forward(g + h * a) - M.forward(g - h * a)) / (2 * h)
+    lhs, rhs = _dot(Jv, lambda b: M.transpose(g, b), M.size, P.model.mesh.n_elements)
+    assert lhs == pytest.approx(rhs, rel=1e-8)
+
+
+def test_mesh_motion_maps_and_solver_transposes():
+    P = problem("effects.coupling=two-way", *MOVERS["yeoh"])
+    motion = P.model.motion
+    n = P.model.mesh.n_nodes
+    lhs, rhs = _dot(lambda a: motion.target(a).ravel(), motion.target_transpose, 2 * n, 2 * n)
+    assert lhs == pytest.approx(rhs, rel=1e-13)
+    from tofsi.physics.motion_block import solid_indicator
+    rho = np.random.default_rng(6).uniform(0, 1, P.model.mesh.n_elements)
+    _, ds = solid_indicator(rho, P.model.mesh.quads, n)
+    lhs, rhs = _dot(lambda a: ds @ a, lambda b: motion.density_transpose(rho, 0, b), rho.size, n)
+    assert lhs == pytest.approx(rhs, rel=1e-13)
+    state = P.solve(P.initial_design())
+    J = P.model.jacobian(state.u, state.x, state.w, state.rho)
+    from tofsi.linalg import DirectSolver
+    S = DirectSolver(J)
+    lhs, rhs = _dot(S.solve, S.solve_transpose, J.shape[0], J.shape[0])
+    assert lhs == pytest.approx(rhs, rel=1e-9)
