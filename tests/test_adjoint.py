@@ -165,3 +165,22 @@ def test_mesh_motion_maps_and_solver_transposes():
     S = DirectSolver(J)
     lhs, rhs = _dot(S.solve, S.solve_transpose, J.shape[0], J.shape[0])
     assert lhs == pytest.approx(rhs, rel=1e-9)
+
+
+def test_check_gradients_command_passes_and_fails_with_status_1(tmp_path, monkeypatch, capsys):
+    from tofsi.cli import main
+    from conftest import scene_path
+    args = ["check-gradients", str(scene_path("beam_in_channel_optimization")), "--set", "mesh.h_min=0.1",
+            "--set", "mesh.h_max=0.1", "--output", str(tmp_path), "--json", "-q"]
+    assert main(args) == 0
+    import json
+    out = json.loads(capsys.readouterr().out)
+    assert out["passed"] and {r["check"] for r in out["checks"]} >= {"F_w", "S_u", "S_w", "S_rho",
+                                                                      "objective compliance"}
+    import adjoint.blocks
+    original = adjoint.blocks.Blocks.S_rho
+    monkeypatch.setattr(adjoint.blocks.Blocks, "S_rho", lambda self: 1.01 * original(self))
+    assert main(args) == 1
+    out = json.loads(capsys.readouterr().out)
+    failed = {r["check"] for r in out["checks"] if not r["passed"]}
+    assert "S_rho" in failed and "objective compliance" in failed

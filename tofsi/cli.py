@@ -21,6 +21,7 @@ from tofsi.scene import load_scene
 COMMANDS = {
     "mesh": "build the scene's mesh; print sizes; write the mesh and a picture",
     "move": "mesh-motion study: move the mesh with the scene's mover; report quality",
+    "check-gradients": "adjoint versus finite differences, block by block and total",
     "solve": "forward analysis of the scene's design with the effects the scene enables",
     "study": "parametric sweep (stiffening factors, A20, kappa, increments, mesh size) to a CSV and a plot",
 }
@@ -53,6 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
                            help="KEY=START:STOP:STEP, KEY=START:STOP:*FACTOR or KEY=V1,V2,... "
                                 "(repeat for a grid; KEY[i] sweeps one list entry)")
             p.add_argument("--jobs", type=int, default=1, help="worker processes")
+        if name == "check-gradients":
+            p.add_argument("--seed", type=int, default=0, help="seed of the random design and directions")
     return parser
 
 
@@ -82,7 +85,7 @@ def main(argv=None) -> int:
         return 130
     if args.json:
         print(to_json(figures))
-    return 0
+    return getattr(ctx, "exit_status", 0)
 
 
 if __name__ == "__main__":

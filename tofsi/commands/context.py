@@ -15,6 +15,7 @@ class RunContext:
     json: bool = False
     quiet: bool = False
     written: list = field(default_factory=list)
+    exit_status: int = 0
 
     def say(self, text: str = "") -> None:
         """Human-readable output: stdout, or stderr when --json owns stdout."""

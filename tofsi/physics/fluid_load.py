@@ -31,29 +31,28 @@ from tofsi.physics.fluid_kernel import N1, N2, POINTS, WEIGHTS
 
 
 def load_operator(Xe: np.ndarray, viscosity: float) -> np.ndarray:
-    """``B_e`` ``(E, 8, 22)``: element load per unit density, ``f_e = B_e w_e`` (complex-safe)."""
+    """``B_e`` ``(E, 8, 22)``: element load per unit weight, ``f_e = B_e w_e`` (complex-safe)."""
     E = Xe.shape[0]
     mu = viscosity
     g2, det = physical_gradients(Xe, 2, POINTS)                     # (E, G, 9, 2)
     g1, _ = physical_gradients(Xe, 1, POINTS)                       # (E, G, 4, 2)
     H2 = physical_hessians(Xe, 2, POINTS, g2)                       # (E, G, 9, 2, 2)
     w = det * WEIGHTS                                               # (E, G)
-    B = np.zeros((E, 4, 2, 9, 2), dtype=np.result_type(Xe, float))
-    # mu [delta_ik grad M_a . grad N_b + dM_a/dx_k dN_b/dx_i]
-    gw = g1 * w[..., None, None]
-    dot = np.einsum("egaj,egbj->eab", gw, g2)
-    cross = np.einsum("egak,egbi->eaibk", gw, g2)
-    B += mu * cross
-    B[:, :, 0, :, 0] += mu * dot
-    B[:, :, 1, :, 1] += mu * dot
-    # mu M_a [delta_ik lap N_b + d2N_b/dx_k dx_i]
+    G = w.shape[1]
+    gw = g1 * w[..., None, None]                                    # (E, G, 4, 2)
     Mw = N1[None] * w[..., None]                                    # (E, G, 4)
+    # cross[a, k, b, i] = sum_g dM_a/dx_k dN_b/dx_i  (one product over stacked points)
+    cross = np.matmul(gw.reshape(E, G, 8).transpose(0, 2, 1), g2.reshape(E, G, 18)).reshape(E, 4, 2, 9, 2)
+    dot = cross[:, :, 0, :, 0] + cross[:, :, 1, :, 1]               # grad M_a . grad N_b
     lap = H2[..., 0, 0] + H2[..., 1, 1]                             # (E, G, 9)
-    B[:, :, 0, :, 0] += mu * np.einsum("ega,egb->eab", Mw, lap)
-    B[:, :, 1, :, 1] += mu * np.einsum("ega,egb->eab", Mw, lap)
-    B += mu * np.einsum("ega,egbki->eaibk", Mw, H2)
+    Mlap = np.matmul(Mw.transpose(0, 2, 1), lap)                    # sum_g M_a lap N_b
+    MH = np.matmul(Mw.transpose(0, 2, 1), H2.reshape(E, G, 36)).reshape(E, 4, 9, 2, 2)   # [a, b, k, i]
+    B = mu * cross.transpose(0, 1, 4, 3, 2) + mu * MH.transpose(0, 1, 4, 2, 3)           # [a, i, b, k]
+    B[:, :, 0, :, 0] += mu * (dot + Mlap)
+    B[:, :, 1, :, 1] += mu * (dot + Mlap)
     # pressure: -p dM_a/dx_i - M_a dp/dx_i
-    P = -(np.einsum("egai,gc->eaic", gw, N1) + np.einsum("ega,egci->eaic", Mw, g1))
+    P = -(np.matmul(gw.reshape(E, G, 8).transpose(0, 2, 1), N1).reshape(E, 4, 2, 4)
+          + np.matmul(Mw.transpose(0, 2, 1), g1.reshape(E, G, 8)).reshape(E, 4, 4, 2).transpose(0, 1, 3, 2))
     out = np.empty((E, 8, 22), dtype=B.dtype)
     out[:, :, :18] = B.reshape(E, 8, 18)
     out[:, :, 18:] = P.reshape(E, 8, 4)

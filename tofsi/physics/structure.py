@@ -48,6 +48,7 @@ class Structure:
         j = np.repeat(np.arange(mesh.ny + 1), mesh.nx + 1)
         self._perm = nested_dissection(np.repeat(np.column_stack([2 * i, 2 * j]), 2, axis=0))
         self._factor = None                    # (rho bytes, solver) of the last stiffness
+        self._loads = None                     # (x bytes, B) of the last load operators
 
     # ---- stiffness ---------------------------------------------------------------
     def element_matrices(self, rho) -> np.ndarray:
@@ -74,8 +75,12 @@ class Structure:
         return k * np.asarray(rho, dtype=float) ** (k - 1.0)
 
     def load_operators(self, x=None) -> np.ndarray:
-        """``B_e`` on the mesh moved by ``x``."""
-        return load_operator(self.flow.corners(x), self.flow.settings.viscosity)
+        """``B_e`` on the mesh moved by ``x`` (kept while ``x`` does not change: one-way
+        coupling computes it once per optimization)."""
+        key = None if x is None else np.asarray(x).tobytes()
+        if self._loads is None or self._loads[0] != key:
+            self._loads = (key, load_operator(self.flow.corners(x), self.flow.settings.viscosity))
+        return self._loads[1]
 
     def load(self, w, x=None, rho=None, B=None) -> np.ndarray:
         """Fluid load ``f`` (2n,) [N/m] on the nodes."""
