@@ -91,7 +91,7 @@ def test_volume_constraint_needs_no_solve_and_is_exact():
     fd = central_difference(lambda x: P.constraints(x)[0][0], gamma, d, 1e-5)
     assert relative_error(fd, dg[0] @ d) < 1e-7          # O(h^2) and round-off at h = 1e-5
     adj = Adjoint(P.model, P.solve(gamma))
-    adj.gradient(P.volume)
+    adj.gradient(P.volume_fraction)
     assert adj.reports == []                                    # no adjoint solve was made
 
 

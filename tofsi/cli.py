@@ -21,6 +21,7 @@ from tofsi.scene import load_scene
 COMMANDS = {
     "mesh": "build the scene's mesh; print sizes; write the mesh and a picture",
     "move": "mesh-motion study: move the mesh with the scene's mover; report quality",
+    "optimize": "topology optimization with NLopt (MMA or CCSAQ)",
     "check-gradients": "adjoint versus finite differences, block by block and total",
     "solve": "forward analysis of the scene's design with the effects the scene enables",
     "study": "parametric sweep (stiffening factors, A20, kappa, increments, mesh size) to a CSV and a plot",
@@ -54,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
                            help="KEY=START:STOP:STEP, KEY=START:STOP:*FACTOR or KEY=V1,V2,... "
                                 "(repeat for a grid; KEY[i] sweeps one list entry)")
             p.add_argument("--jobs", type=int, default=1, help="worker processes")
+        if name == "optimize":
+            p.add_argument("--resume", action="store_true",
+                           help="continue exactly where an interrupted run in --output stopped")
         if name == "check-gradients":
             p.add_argument("--seed", type=int, default=0, help="seed of the random design and directions")
     return parser
@@ -81,7 +85,8 @@ def main(argv=None) -> int:
             print(to_json({"error": str(err), "converged": False, "diagnostic": str(path)}))
         return 3
     except KeyboardInterrupt:
-        print("tofsi: interrupted", file=sys.stderr)
+        hint = " (resume with --resume)" if args.command == "optimize" else ""
+        print(f"tofsi: interrupted{hint}", file=sys.stderr)
         return 130
     if args.json:
         print(to_json(figures))

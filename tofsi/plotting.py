@@ -133,3 +133,42 @@ def plot_nodal(path, points, quads, values, title="", label="", cmap="viridis", 
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     save(fig, path)
+
+
+def plot_design(path, points, quads, rho, speed=None, title="", width=8.0) -> None:
+    """Design densities (grey: solid) over the flow speed (nodal, colour)."""
+    from matplotlib.tri import Triangulation
+    span = np.ptp(points, axis=0)
+    fig, ax = plt.subplots(figsize=(width, width * span[1] / span[0] + 0.6), dpi=110)
+    if speed is not None:
+        tris = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+        m = ax.tripcolor(Triangulation(points[:, 0], points[:, 1], tris), speed, shading="gouraud",
+                         cmap="Blues")
+        fig.colorbar(m, ax=ax, label="|v| [m/s]", shrink=0.8)
+    colours = np.zeros((len(rho), 4))
+    colours[:, 3] = np.clip(rho, 0, 1)                     # black, opaque where solid
+    ax.add_collection(PolyCollection(points[quads], facecolors=colours, edgecolors="none"))
+    ax.set_xlim(points[:, 0].min(), points[:, 0].max())
+    ax.set_ylim(points[:, 1].min(), points[:, 1].max())
+    ax.set_aspect("equal")
+    ax.set_title(title)
+    save(fig, path)
+
+
+def plot_convergence(path, history: list[dict], title="") -> None:
+    """Scaled objective and constraint versus iteration, stages marked."""
+    it = [h["iteration"] for h in history]
+    fig, ax = plt.subplots(figsize=(7, 3.6), dpi=110)
+    ax.plot(it, [h["scaled_objective"] for h in history], "b-", label="objective / initial")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("objective / initial", color="b")
+    ax2 = ax.twinx()
+    ax2.plot(it, [h["constraint"] for h in history], "r-", label="constraint g")
+    ax2.axhline(0.0, color="r", lw=0.5, ls=":")
+    ax2.set_ylabel("volume constraint g (<= 0)", color="r")
+    for k in range(1, len(history)):
+        if history[k]["stage"] != history[k - 1]["stage"]:
+            ax.axvline(history[k]["iteration"], color="0.7", lw=0.8, ls="--")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    save(fig, path)

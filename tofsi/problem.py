@@ -23,6 +23,7 @@ from tofsi.coupled import CoupledModel, State
 from tofsi.design import DesignMap
 from tofsi.errors import InputError
 from tofsi.interpolation import SIMP
+from tofsi.linalg import RecyclingSolver
 from tofsi.objectives import OBJECTIVES, VolumeFraction
 
 
@@ -40,7 +41,7 @@ class Problem:
             raise InputError("design.objective", d.objective, f"needs effects.{needs}")
         self.map = DesignMap(self.model.mesh, d.filter_radius, d.beta[0], d.eta)
         self.objective = OBJECTIVES[d.objective]()
-        self.volume = VolumeFraction(self.model.mesh, self.map.design)
+        self.volume_fraction = VolumeFraction(self.model.mesh, self.map.design)
         self._cache: dict = {}
         self._guess: State | None = None
         self.evaluations = 0
@@ -63,6 +64,16 @@ class Problem:
             flow = self.model.flow
             flow.brinkman = dataclasses.replace(flow.brinkman, q=q)
         self._cache.clear()
+
+    def reset_solvers(self) -> None:
+        """Forget recycled factorizations, so the next solve depends only on its inputs."""
+        flow = self.model.flow
+        flow.solver = RecyclingSolver(flow._factorize)
+        self.model._newton_solver = None
+
+    def set_guess(self, state: State | None) -> None:
+        """The state the next forward solve starts from."""
+        self._guess = state
 
     # ---- evaluation -------------------------------------------------------------------
     def densities(self, gamma) -> np.ndarray:
@@ -104,12 +115,22 @@ class Problem:
         return entry["objective"]
 
     def constraints(self, gamma) -> tuple[np.ndarray, np.ndarray]:
-        """``g = [volume / volume_fraction - 1] <= 0`` and ``dg/dgamma`` (1, n_design)."""
+        """``g = [phase fraction / volume_fraction - 1] <= 0`` and ``dg/dgamma`` (1, n_design).
+
+        The phase is the solid (``design.constraint = "solid"``) or the fluid
+        (``"fluid"``: fraction ``1 - solid``) of the design region.
+        """
         entry = self._entry(gamma)
         if "constraints" not in entry:
             state = entry["state"]
-            vf = self.scene.design.volume_fraction
-            g = self.volume.value(self.model, state) / vf - 1.0
-            dg = self.map.transpose(entry["gamma"], self._adjoint(entry).gradient(self.volume)) / vf
-            entry["constraints"] = (np.array([g]), dg[None, :])
+            d = self.scene.design
+            solid = self.volume_fraction.value(self.model, state)
+            dsolid = self.map.transpose(entry["gamma"], self._adjoint(entry).gradient(self.volume_fraction))
+            sign, fraction = (1.0, solid) if d.constraint == "solid" else (-1.0, 1.0 - solid)
+            g = fraction / d.volume_fraction - 1.0
+            entry["constraints"] = (np.array([g]), sign * dsolid[None, :] / d.volume_fraction)
         return entry["constraints"]
+
+    def volume(self, gamma) -> float:
+        """Solid fraction of the design region."""
+        return self.volume_fraction.value(self.model, self.solve(gamma))

@@ -20,6 +20,12 @@ class FluidSettings:
     density: float = option(1.0, ge=0, doc="fluid density [kg/m^3]; 0 gives Stokes flow")
     viscosity: float = option(1.0, gt=0, doc="dynamic viscosity [Pa s]")
     inlet_velocity: float = option(1.0, doc="peak of the parabolic inlet profile [m/s]")
+    inlets: tuple[tuple[float, ...], ...] = option((), length=3,
+                                                   doc="inflow segments [y0, y1, peak velocity] on "
+                                                       "the left side; empty: the whole side")
+    outlets: tuple[tuple[float, ...], ...] = option((), length=3,
+                                                    doc="prescribed outflow segments [y0, y1, peak] on "
+                                                        "the right side; empty: natural outlet")
     outlet: str = option("zero-pressure", choices=("zero-pressure", "traction-free"),
                          doc="outlet condition: mu dv/dn - p n = 0 (zero pressure for "
                              "developed flow) or (-p I + 2 mu eps(v)) n = 0")
@@ -37,6 +43,10 @@ class FluidSettings:
         if self.alpha_min > self.alpha_max:
             raise InputError("alpha_min", self.alpha_min,
                              f"allowed: 0 <= alpha_min <= alpha_max = {self.alpha_max}")
+        for name in ("inlets", "outlets"):
+            for i, (y0, y1, _) in enumerate(getattr(self, name)):
+                if not y0 < y1:
+                    raise InputError(f"{name}[{i}]", [y0, y1], "need y0 < y1")
 
 
 @dataclass(frozen=True)
@@ -74,7 +84,10 @@ class DesignSettings:
     objective: str = option("compliance", choices=("compliance", "dissipation", "pressure-drop"),
                             doc="quantity to minimize")
     volume_fraction: float = option(0.25, gt=0, lt=1,
-                                    doc="upper bound of the solid fraction of the design region")
+                                    doc="upper bound of the constrained phase's fraction of the "
+                                        "design region")
+    constraint: str = option("solid", choices=("solid", "fluid"),
+                             doc="the phase whose fraction volume_fraction bounds (fluid: flow problems)")
     filter_radius: float = option(0.045, gt=0, doc="density filter radius [m]")
     eta: float = option(0.5, gt=0, lt=1, doc="projection threshold")
     beta: tuple[float, ...] = option((1.0, 2.0, 4.0, 8.0, 16.0), ge=0, le=1000,

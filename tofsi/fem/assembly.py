@@ -24,9 +24,10 @@ class SparsePattern:
     ``extra_diagonal`` adds diagonal slots (e.g. for Dirichlet rows) that
     :meth:`assemble` fills from ``diagonal``.
 
-    The first assembly goes through scipy's COO-to-CSR conversion (cheapest
-    for a matrix assembled once); from the second on, every triplet has a
-    precomputed slot in the CSR data array and assembly is one ``bincount``.
+    The CSR structure comes from scipy's COO-to-CSR conversion once; then
+    every triplet gets its slot in the CSR data array and each assembly is one
+    ``bincount``. Every assembly sums in the same order, so results never
+    depend on how many assemblies came before (bitwise reproducible runs).
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
@@ -59,10 +60,9 @@ class SparsePattern:
         """CSR matrix from element values ``(E, a, b)`` (and the extra diagonal entries)."""
         values = self._values(values, diagonal)
         if self._csr is None:
-            A = sp.coo_matrix((values, (self.rows, self.cols)), shape=self.shape).tocsr()
+            A = sp.coo_matrix((np.ones(self.rows.size), (self.rows, self.cols)), shape=self.shape).tocsr()
             A.sum_duplicates()
             self._csr = (A.indices, A.indptr)
-            return A
         if self.slot is None:
             self._build_slots()
         nnz = self._csr[0].size

@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.errors import InputError, NumericalError
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.interpolation import Brinkman
@@ -82,18 +82,32 @@ class Flow:
             if boundary_velocity is not None:
                 self.values[element_dofs(nodes[:, None], 2)] = boundary_velocity(mesh.points9()[nodes])
         if inlet:
-            nodes = mesh.side_nodes9(inlet)
-            y = mesh.points9()[nodes, 1]
-            H = mesh.ys[-1] - mesh.ys[0]
-            self.values[2 * nodes] = 4.0 * settings.inlet_velocity * (y - mesh.ys[0]) * (mesh.ys[-1] - y) / H**2
-            fixed.append(element_dofs(nodes[:, None], 2).ravel())
+            segments = settings.inlets or ((mesh.ys[0], mesh.ys[-1], settings.inlet_velocity),)
+            self._prescribe(inlet, segments, fixed)
+        if settings.outlets and outlet:
+            self._prescribe(outlet, settings.outlets, fixed)
+            outlet = None
         if not outlet:                                 # closed box: fix the pressure level
             fixed.append(np.array([2 * n9]))
-        self.inlet, self.outlet = inlet, outlet
+        self.inlet = inlet
+        self.outlet = outlet if outlet else ("right" if settings.outlets and boundary_velocity is None else None)
+        self.open_outlet = bool(outlet)
         self.bc = DirichletOperator(self.dofs, self.dofs, self.size, np.concatenate(fixed))
         self.values[~self.bc.is_fixed] = 0.0
+        if inlet and np.abs(self.values).max() == 0.0:
+            raise InputError("fluid.inlets", list(settings.inlets), "no inflow: every segment is empty")
         self.solver = RecyclingSolver(self._factorize)
         self._perm = None
+
+    def _prescribe(self, side: str, segments, fixed: list) -> None:
+        """Parabolic normal velocity ``4 U (y - y0)(y1 - y) / (y1 - y0)^2`` on segments of a side
+        (no slip on the rest of it)."""
+        nodes = self.mesh.side_nodes9(side)
+        y = self.mesh.points9()[nodes, 1]
+        for y0, y1, peak in segments:
+            inside = (y > y0) & (y < y1)
+            self.values[2 * nodes[inside]] = 4.0 * peak * (y[inside] - y0) * (y1 - y[inside]) / (y1 - y0) ** 2
+        fixed.append(element_dofs(nodes[:, None], 2).ravel())
 
     # ---- geometry and state -------------------------------------------------------
     def corners(self, x=None) -> np.ndarray:

@@ -1,0 +1,75 @@
+"""``tofsi optimize SCENE``: topology optimization with NLopt; ``--resume`` continues a run."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from tofsi.optimize import Optimizer
+from tofsi.output import atomic_write, write_vtu
+from tofsi.plotting import plot_convergence, plot_design
+from tofsi.problem import Problem
+
+
+class Pictures:
+    """Design PNGs, a VTU series with its ParaView collection, and the convergence plot."""
+
+    def __init__(self, ctx, problem):
+        self.ctx, self.problem, self.series = ctx, problem, []
+
+    def __call__(self, iteration, gamma, state) -> None:
+        p, mesh = self.problem, self.problem.model.mesh
+        tag = iteration if iteration == "final" else f"{iteration:04d}"
+        X = mesh.points if state.x is None else mesh.points + state.displacement
+        speed = None
+        point_data = {}
+        if state.w is not None:
+            v = state.w[:p.model.flow.n_velocity].reshape(-1, 2)
+            speed = np.linalg.norm(v[: mesh.n_nodes], axis=1)
+            point_data = {"velocity": v[: mesh.n_nodes], "pressure": state.w[p.model.flow.n_velocity:]}
+        if state.u is not None:
+            point_data["structure_displacement"] = state.u.reshape(-1, 2)
+        name = f"design_{tag}"
+        plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
+                    title=f"{p.scene.name}: design at iteration {iteration}")
+        write_vtu(self.ctx.output / f"{name}.vtu", X, {"quad": mesh.quads}, point_data,
+                  {"density": state.rho, "region": mesh.region})
+        if iteration != "final":
+            self.series.append((iteration, f"{name}.vtu"))
+            self._collection()
+
+    def _collection(self) -> None:
+        rows = "\n".join(f'    <DataSet timestep="{i}" file="{f}"/>' for i, f in self.series)
+        text = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
+                f"{rows}\n  </Collection>\n</VTKFile>\n")
+        atomic_write(self.ctx.output / "design_series.pvd", lambda tmp: open(tmp, "w").write(text))
+
+
+def run(scene, args, ctx) -> dict:
+    problem = Problem(scene)
+    ctx.output.mkdir(parents=True, exist_ok=True)
+    pictures = Pictures(ctx, problem)
+    d, s = scene.design, scene.optimizer
+    ctx.say(f"{scene.name}: {problem.n_design} design variables, {problem.model.mesh.n_elements} "
+            f"elements; {s.algorithm}, {d.objective} subject to {d.constraint} fraction <= "
+            f"{d.volume_fraction:g}; outputs in {ctx.output}")
+    ctx.say(f"{'iter':>5s} {'stage':>5s} {'objective':>12s} {'volume':>7s} {'g':>9s} {'change':>8s} "
+            f"{'beta':>5s} {'time':>7s}")
+
+    def line(it):
+        if not ctx.quiet:
+            print(f"{it.iteration:5d} {it.stage:5d} {it.objective:12.5g} {it.volume:7.4f} "
+                  f"{it.constraint:9.2e} {it.change:8.4f} {it.beta:5.1f} {it.time_s:7.1f}",
+                  file=sys.stderr if ctx.json else sys.stdout, flush=True)
+
+    optimizer = Optimizer(problem, ctx.output, on_iteration=line, on_picture=pictures)
+    figures = optimizer.run(resume=args.resume)
+    plot_convergence(ctx.output / "convergence.png", [h.__dict__ for h in optimizer.history],
+                     title=f"{scene.name}: {d.objective}")
+    ctx.say(f"final {d.objective} {figures['objective']:.6g}, volume {figures['volume']:.4f} "
+            f"(constraint {figures['constraint']:.2e}), non-discreteness "
+            f"{figures['non_discreteness_percent']:.1f} %, {figures['iterations']} iterations, "
+            f"{figures['wall_time_s']:.0f} s")
+    figures["outputs"] = sorted(str(p) for p in ctx.output.iterdir())
+    return figures

@@ -1,0 +1,263 @@
+"""Topology optimization with NLopt (MMA or CCSAQ), continuation, checkpoints and outputs.
+
+The driver reads top to bottom::
+
+    for each continuation stage (projection beta, SIMP penalty, Brinkman q):
+        NLopt minimizes f(gamma) / f(gamma_0) subject to g(gamma) <= 0, 0 <= gamma <= 1,
+        each evaluation: one forward solve + one adjoint per quantity (cached),
+        after each evaluation: history row, checkpoint, pictures every N iterations.
+
+Resuming is exact. NLopt's MMA keeps internal state that cannot be saved,
+so a checkpoint holds every evaluation of the current stage and the last
+coupled state; ``resume`` restarts the stage from its first design and
+replays the stored evaluations bit for bit (NLopt is deterministic given the
+same values) until it passes the interruption, then computes on. Every
+computed evaluation starts its solvers' factorizations afresh and is
+warm-started from the stored previous state, so its result depends only on
+stored data: the resumed history equals the uninterrupted one exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import nlopt
+import numpy as np
+
+from tofsi.coupled import State
+from tofsi.errors import InputError
+from tofsi.output import atomic_write, write_csv, write_json
+
+log = logging.getLogger(__name__)
+ALGORITHMS = {"MMA": nlopt.LD_MMA, "CCSAQ": nlopt.LD_CCSAQ}
+MIN_STAGE = 5            # evaluations before a stage may stop on small changes
+INITIAL_STEP = 0.05      # MMA's initial asymptote distance (a move limit for the first steps)
+
+
+@dataclass
+class Iteration:
+    iteration: int
+    stage: int
+    objective: float           # unscaled
+    scaled_objective: float    # by the stage's first value
+    volume: float              # solid fraction of the design region
+    constraint: float          # g <= 0 feasible
+    change: float              # max |gamma - gamma_previous|
+    beta: float
+    penalty: float
+    brinkman_q: float
+    time_s: float
+
+
+def stage_parameters(design, stage: int) -> dict:
+    def pick(schedule):
+        return schedule[min(stage, len(schedule) - 1)] if schedule else None
+    return {"beta": pick(design.beta), "penalty": pick(design.penalty), "q": pick(design.brinkman_q)}
+
+
+def non_discreteness(rho: np.ndarray) -> float:
+    """Measure of non-discreteness ``4 sum rho (1 - rho) / n`` in percent (0: black and white)."""
+    return float(400.0 * np.mean(rho * (1.0 - rho)))
+
+
+class Optimizer:
+    """NLopt-driven design of a :class:`~tofsi.problem.Problem` with checkpoints in ``output``.
+
+    on_iteration : optional callback ``(Iteration) -> None`` (progress lines, tests)
+    on_picture : optional callback ``(iteration, gamma, state) -> None`` (pictures, VTU)
+    """
+
+    def __init__(self, problem, output: Path, on_iteration=None, on_picture=None):
+        self.problem, self.output = problem, Path(output)
+        self.scene = problem.scene
+        self.settings, self.design = self.scene.optimizer, self.scene.design
+        self.on_iteration, self.on_picture = on_iteration, on_picture
+        self.history: list[Iteration] = []
+        self.scale = None
+        self._replay: list[dict] = []        # stored evaluations of this stage, in order
+        self._stage_log: list[dict] = []     # evaluations of the running stage (checkpointed)
+        self._last = None                    # (gamma, entry) of the last evaluation
+        self._t0 = time.perf_counter()
+
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.output / "checkpoint.npz"
+
+    # ---- evaluation with replay --------------------------------------------------------
+    def _evaluate(self, gamma: np.ndarray, stage: int) -> dict:
+        if self._last is not None and np.array_equal(self._last[0], gamma):
+            return self._last[1]
+        if self._replay:
+            stored = self._replay.pop(0)
+            if not np.array_equal(stored["gamma"], gamma):
+                raise InputError("--resume", str(self.checkpoint_path),
+                                 "the checkpoint does not match this scene's optimization path")
+            entry = stored
+        else:
+            entry = self._compute(gamma)
+        previous = self._last[0] if self._last is not None else (
+            self._stage_log[-1]["gamma"] if self._stage_log else gamma)
+        self._last = (gamma.copy(), entry)
+        self._stage_log.append(entry)
+        self._record(gamma, entry, stage, float(np.max(np.abs(gamma - previous))))
+        return entry
+
+    def _compute(self, gamma: np.ndarray) -> dict:
+        p = self.problem
+        p.reset_solvers()
+        f, df = p.evaluate(gamma)
+        g, dg = p.constraints(gamma)
+        state = p.solve(gamma)
+        return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
+                "volume": p.volume_fraction.value(p.model, state), "state": state}
+
+    def _record(self, gamma, entry, stage, change) -> None:
+        if self.scale is None:                  # each stage scales by its first objective value
+            self.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
+        params = stage_parameters(self.design, stage)
+        it = Iteration(len(self.history), stage, float(entry["f"]), float(entry["f"] / self.scale),
+                       float(entry["volume"]), float(entry["g"][0]), change, params["beta"],
+                       params["penalty"] or 0.0, params["q"] or 0.0,
+                       time.perf_counter() - self._t0)
+        self.history.append(it)
+        if "state" in entry:                           # computed now (not replayed): save
+            self._checkpoint(stage, entry["state"])
+            self._write_history()
+            if self.on_picture and (it.iteration % self.settings.output_every == 0):
+                self.on_picture(it.iteration, gamma, entry["state"])
+        if self.on_iteration:
+            self.on_iteration(it)
+
+    # ---- checkpoints -----------------------------------------------------------------
+    def _checkpoint(self, stage: int, state: State) -> None:
+        log_arrays = {}
+        for k, e in enumerate(self._stage_log):
+            for key in ("gamma", "df", "g", "dg"):
+                log_arrays[f"e{k}_{key}"] = e[key]
+            log_arrays[f"e{k}_f"] = np.array([e["f"], e["volume"]])
+        fields = {f"state_{k}": getattr(state, k) for k in ("w", "u", "x") if getattr(state, k) is not None}
+        meta = {"scene": self.scene.name, "stage": stage, "n_stage_evaluations": len(self._stage_log),
+                "scale": self.scale, "history": [asdict(h) for h in self.history],
+                "stage_start": self._stage_start.tolist()}
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, meta=np.array(json.dumps(meta)), rho=state.rho, **fields, **log_arrays)
+        atomic_write(self.checkpoint_path, write)
+
+    def _load_checkpoint(self):
+        if not self.checkpoint_path.is_file():
+            raise InputError("--resume", str(self.checkpoint_path), "no checkpoint to resume from")
+        with np.load(self.checkpoint_path) as npz:          # fresh, aligned copies: vectorized
+            data = {k: np.array(npz[k], copy=True) for k in npz.files}   # kernels round by alignment
+        meta = json.loads(str(data["meta"]))
+        if meta["scene"] != self.scene.name:
+            raise InputError("--resume", meta["scene"], f"the checkpoint is of another scene, not {self.scene.name}")
+        replay = []
+        for k in range(meta["n_stage_evaluations"]):
+            f, volume = data[f"e{k}_f"]
+            replay.append({"gamma": data[f"e{k}_gamma"], "df": data[f"e{k}_df"], "g": data[f"e{k}_g"],
+                           "dg": data[f"e{k}_dg"], "f": float(f), "volume": float(volume)})
+        state = State(rho=data["rho"], converged=True,
+                      **{k: data[f"state_{k}"] for k in ("w", "u", "x") if f"state_{k}" in data})
+        return meta, replay, state
+
+    # ---- the run ---------------------------------------------------------------------
+    def run(self, resume: bool = False) -> dict:
+        """Optimize from the initial design (or the checkpoint); returns the final figures."""
+        p, s, d = self.problem, self.settings, self.design
+        gamma = p.initial_design()
+        first_stage, skip = 0, 0
+        if resume:
+            meta, self._replay, state = self._load_checkpoint()
+            first_stage, self.scale = meta["stage"], meta["scale"]
+            skip = meta["history"][-1]["iteration"] + 1 - len(self._replay)   # earlier stages
+            self.history = [Iteration(**h) for h in meta["history"][:skip]]
+            gamma = np.asarray(meta["stage_start"], dtype=float)
+            p.set_guess(state)
+        n_stages = max(len(d.beta), len(d.penalty), len(d.brinkman_q), 1)
+        for stage in range(first_stage, n_stages):
+            remaining = s.max_iter - len(self.history)
+            if remaining <= 0:
+                break
+            params = stage_parameters(d, stage)
+            p.set_stage(beta=params["beta"], penalty=params["penalty"], q=params["q"])
+            self._stage_start = gamma.copy()
+            self._stage_log, self._last = [], None
+            if not (resume and stage == first_stage):
+                self.scale = None
+            last_stage = stage == n_stages - 1
+            gamma = self._run_stage(gamma, stage, remaining if last_stage else min(remaining, d.stage_iterations))
+        return self.finish(gamma)
+
+    def _converged(self, stage: int) -> bool:
+        """Stop a stage once the design settles: after ``MIN_STAGE`` evaluations, the largest
+        change below ``tol_change`` twice in a row, or the relative objective change below
+        ``tol_objective`` three times in a row."""
+        h = [it for it in self.history if it.stage == stage]
+        if len(h) < MIN_STAGE:
+            return False
+        s = self.settings
+        if all(it.change < s.tol_change for it in h[-2:]):
+            return True
+        f = [it.objective for it in h[-4:]]
+        return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
+
+    def _run_stage(self, gamma, stage: int, max_evaluations: int) -> np.ndarray:
+        s = self.settings
+        opt = nlopt.opt(ALGORITHMS[s.algorithm], gamma.size)
+        opt.set_lower_bounds(np.zeros(gamma.size))
+        opt.set_upper_bounds(np.ones(gamma.size))
+        opt.set_initial_step(np.full(gamma.size, INITIAL_STEP))
+
+        def objective(x, grad):
+            e = self._evaluate(np.asarray(x), stage)
+            if grad.size:
+                grad[:] = e["df"] / self.scale
+            if self._converged(stage):
+                raise nlopt.ForcedStop
+            return float(e["f"] / self.scale)
+
+        def constraint(result, x, grad):
+            e = self._evaluate(np.asarray(x), stage)
+            result[:] = e["g"]
+            if grad.size:
+                grad[:] = e["dg"]
+
+        opt.set_min_objective(objective)
+        opt.add_inequality_mconstraint(constraint, [1e-8])
+        opt.set_maxeval(max_evaluations)
+        try:
+            return np.asarray(opt.optimize(np.clip(gamma, 0.0, 1.0)))
+        except nlopt.ForcedStop:
+            log.info("stage %d converged after %d evaluations", stage, len(self._stage_log))
+            return self._last[0].copy()
+
+    def _write_history(self) -> None:
+        rows = [asdict(h) for h in self.history]
+        write_csv(self.output / "history.csv", rows)
+        write_json(self.output / "history.json", rows)
+
+    def finish(self, gamma: np.ndarray) -> dict:
+        """Evaluate the final design (after the last stage's parameters) and summarize it."""
+        p = self.problem
+        state = p.solve(gamma)
+        rho = p.densities(gamma)[p.map.design]
+        figures = {"scene": self.scene.name, "iterations": len(self.history),
+                   "objective": float(p.evaluate(gamma)[0]),
+                   "volume": float(p.volume_fraction.value(p.model, state)),
+                   "constraint": float(p.constraints(gamma)[0][0]),
+                   "non_discreteness_percent": non_discreteness(rho),
+                   "wall_time_s": time.perf_counter() - self._t0,
+                   "evaluations_computed": p.evaluations, **p.model.figures(state)}
+        self._write_history()
+        write_json(self.output / "result.json", figures)
+        atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))
+        if self.on_picture:
+            self.on_picture("final", gamma, state)
+        self.final_state = state
+        return figures
