@@ -156,12 +156,15 @@ def plot_design(path, points, quads, rho, speed=None, title="", width=8.0) -> No
 
 
 def plot_convergence(path, history: list[dict], title="") -> None:
-    """Scaled objective and constraint versus iteration, stages marked."""
+    """Objective (log scale) and volume constraint versus iteration; stage starts dashed."""
     it = [h["iteration"] for h in history]
     fig, ax = plt.subplots(figsize=(7, 3.6), dpi=110)
-    ax.plot(it, [h["scaled_objective"] for h in history], "b-", label="objective / initial")
+    objective = np.array([h["objective"] for h in history])
+    ax.plot(it, np.abs(objective), "b-", label="objective")
+    if np.all(objective > 0) and objective.max() / objective.min() > 20:
+        ax.set_yscale("log")
     ax.set_xlabel("iteration")
-    ax.set_ylabel("objective / initial", color="b")
+    ax.set_ylabel("objective", color="b")
     ax2 = ax.twinx()
     ax2.plot(it, [h["constraint"] for h in history], "r-", label="constraint g")
     ax2.axhline(0.0, color="r", lw=0.5, ls=":")
@@ -170,5 +173,5 @@ def plot_convergence(path, history: list[dict], title="") -> None:
         if history[k]["stage"] != history[k - 1]["stage"]:
             ax.axvline(history[k]["iteration"], color="0.7", lw=0.8, ls="--")
     ax.set_title(title)
-    ax.grid(alpha=0.3)
+    ax.grid(alpha=0.3, which="both")
     save(fig, path)

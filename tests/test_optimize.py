@@ -1,0 +1,94 @@
+"""The optimization driver: decreases, satisfies, writes where asked, and resumes exactly."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import tofsi
+from tofsi.optimize import Optimizer, non_discreteness
+
+from conftest import scene_path
+
+TINY = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.25", "optimizer.max_iter=14",
+        "design.stage_iterations=6"]
+
+
+def run(output, on_iteration=None, resume=False, scene_overrides=TINY):
+    scene = tofsi.load_scene(scene_path("beam_in_channel_optimization"), scene_overrides)
+    opt = Optimizer(tofsi.Problem(scene), output, on_iteration=on_iteration)
+    return opt, opt.run(resume=resume)
+
+
+def test_a_few_iterations_decrease_the_objective_and_keep_the_volume(tmp_path):
+    opt, result = run(tmp_path / "out")
+    h = opt.history
+    assert result["objective"] < 0.1 * h[0].objective
+    assert result["constraint"] <= 1e-3                       # volume within 0.1 % of the bound
+    assert result["volume"] == pytest.approx(opt.problem.volume(np.load(tmp_path / "out" / "design.npy")))
+    assert {"history.csv", "history.json", "checkpoint.npz", "result.json", "design.npy"} <= \
+        {p.name for p in (tmp_path / "out").iterdir()}
+
+
+def test_resume_after_an_interruption_reproduces_the_history_exactly(tmp_path):
+    full, _ = run(tmp_path / "full")
+
+    def interrupt(it):
+        if it.iteration == 8:                                 # inside the second stage
+            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path / "cut", on_iteration=interrupt)
+    resumed, _ = run(tmp_path / "cut", resume=True)
+    key = lambda h: (h.iteration, h.stage, h.objective, h.volume, h.constraint, h.change, h.beta)
+    assert [key(h) for h in resumed.history] == [key(h) for h in full.history]   # bitwise
+    np.testing.assert_array_equal(np.load(tmp_path / "cut" / "design.npy"),
+                                  np.load(tmp_path / "full" / "design.npy"))
+
+
+def test_resume_without_a_checkpoint_is_an_input_error(tmp_path):
+    from tofsi.errors import InputError
+    with pytest.raises(InputError, match="no checkpoint"):
+        run(tmp_path / "none", resume=True)
+
+
+def test_tofsi_optimize_writes_only_into_its_output_folder(tmp_path):
+    work = tmp_path / "work"
+    work.mkdir()
+    before = set(os.listdir(scene_path("beam_in_channel_optimization").parent))
+    args = [sys.executable, "-m", "tofsi.cli", "optimize", str(scene_path("beam_in_channel_optimization")),
+            "--output", "out", "--json", "--set", "optimizer.output_every=5"]
+    for o in TINY:
+        args += ["--set", o]
+    proc = subprocess.run(args, capture_output=True, text=True, cwd=work)
+    assert proc.returncode == 0, proc.stderr
+    assert os.listdir(work) == ["out"]
+    assert set(os.listdir(scene_path("beam_in_channel_optimization").parent)) == before
+    names = set(os.listdir(work / "out"))
+    assert {"design_0000.png", "design_0005.vtu", "design_series.pvd", "design_final.png",
+            "convergence.png", "history.csv", "checkpoint.npz"} <= names
+    figures = json.loads(proc.stdout)
+    assert figures["iterations"] == 14 and "non_discreteness_percent" in figures
+
+
+def test_non_discreteness_is_zero_for_black_and_white_and_100_for_grey():
+    assert non_discreteness(np.array([0.0, 1.0, 1.0, 0.0])) == 0.0
+    assert non_discreteness(np.full(7, 0.5)) == pytest.approx(100.0)
+
+
+def test_double_pipe_gives_two_separate_pipes(tmp_path):
+    """Borrvall-Petersson, length 1: the fluid forms two straight pipes, solid between them."""
+    scene = tofsi.load_scene(scene_path("double_pipe"), ["mesh.h_min=0.05", "mesh.h_max=0.05",
+                                                        "optimizer.max_iter=60"])
+    opt = Optimizer(tofsi.Problem(scene), tmp_path / "dp")
+    result = opt.run()
+    mesh = opt.problem.model.mesh
+    fluid = 1 - opt.final_state.rho
+    c = mesh.centroids
+    middle = np.abs(c[:, 0] - 0.5) < 0.3
+    assert fluid[middle & (np.abs(c[:, 1] - 0.25) < 0.05)].mean() > 0.8     # the lower pipe
+    assert fluid[middle & (np.abs(c[:, 1] - 0.75) < 0.05)].mean() > 0.8     # the upper pipe
+    assert fluid[middle & (np.abs(c[:, 1] - 0.5) < 0.05)].mean() < 0.2      # solid between
+    assert result["constraint"] <= 1e-3
