@@ -13,8 +13,8 @@ coupled state; ``resume`` restarts the stage from its first design and
 replays the stored evaluations bit for bit (NLopt is deterministic given the
 same values) until it passes the interruption, then computes on. Every
 computed evaluation starts its solvers' factorizations afresh and is
-warm-started from the stored previous state, so its result depends only on
-stored data: the resumed history equals the uninterrupted one exactly.
+warm-started from the previous evaluation's state, which a resume restores
+exactly: the resumed history equals the uninterrupted one bit for bit.
 """
 
 from __future__ import annotations
@@ -146,7 +146,7 @@ class Optimizer:
 
         def write(tmp):
             with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, meta=np.array(json.dumps(meta)), rho=state.rho, **fields, **log_arrays)
+                np.savez(fh, meta=np.array(json.dumps(meta)), rho=state.rho, **fields, **log_arrays)
         atomic_write(self.checkpoint_path, write)
 
     def _load_checkpoint(self):

@@ -66,7 +66,8 @@ class Problem:
         self._cache.clear()
 
     def reset_solvers(self) -> None:
-        """Forget recycled factorizations, so the next solve depends only on its inputs."""
+        """Forget recycled factorizations, so that the next solve depends only on its inputs
+        (bitwise reproducible runs, also after a resume)."""
         flow = self.model.flow
         flow.solver = RecyclingSolver(flow._factorize)
         self.model._newton_solver = None
