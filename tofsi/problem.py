@@ -45,13 +45,29 @@ class Problem:
         self._cache: dict = {}
         self._guess: State | None = None
         self.evaluations = 0
+        self.initial_design()                      # a bad design.initial fails here, early
 
     @property
     def n_design(self) -> int:
         return self.map.size
 
     def initial_design(self) -> np.ndarray:
-        return np.full(self.n_design, self.scene.design.volume_fraction)
+        """``design.initial`` if given (a saved design), else uniform at the volume bound."""
+        path = self.scene.design.initial
+        if not path:
+            fraction = self.scene.design.volume_fraction
+            return np.full(self.n_design, fraction if self.scene.design.constraint == "solid" else 1 - fraction)
+        from pathlib import Path
+        if not Path(path).is_file():
+            raise InputError("design.initial", path, "no such file (a design.npy of an earlier run)")
+        try:
+            gamma = np.load(path)
+        except (ValueError, OSError) as err:
+            raise InputError("design.initial", path, f"not a NumPy array file ({err})") from None
+        if gamma.shape != (self.n_design,) or not np.all(np.isfinite(gamma)):
+            raise InputError("design.initial", path, f"needs {self.n_design} finite values (this scene's "
+                                                     "design variables), got shape " + str(gamma.shape))
+        return np.clip(gamma, 0.0, 1.0)
 
     def set_stage(self, beta: float | None = None, penalty: float | None = None, q: float | None = None):
         """Change continuation parameters (the cache is cleared)."""

@@ -97,6 +97,8 @@ class DesignSettings:
     brinkman_q: tuple[float, ...] = option((0.1,), gt=0,
                                            doc="Brinkman q schedule (per stage; last value kept)")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
+    initial: str = option("", doc="design to start from: a design.npy of an earlier run "
+                                  "(path relative to the working directory); empty: uniform")
 
 
 @dataclass(frozen=True)

@@ -48,7 +48,6 @@ class Pictures:
 
 def run(scene, args, ctx) -> dict:
     problem = Problem(scene)
-    ctx.output.mkdir(parents=True, exist_ok=True)
     pictures = Pictures(ctx, problem)
     d, s = scene.design, scene.optimizer
     ctx.say(f"{scene.name}: {problem.n_design} design variables, {problem.model.mesh.n_elements} "
