@@ -220,8 +220,9 @@ class Mover(ABC):
         near_null = rigid_body_modes(problem.points) if kind == "amg" else None
         perm = problem.ordering if kind == "direct" else None
         tol = getattr(self.params, "linear_tol", 1e-10)
-        return RecyclingSolver(lambda K: make_solver(K, kind, near_null=near_null, perm=perm, tol=tol),
-                               rtol=tol)
+        symmetric = problem.blend is None            # the blended form is not symmetric
+        return RecyclingSolver(lambda K: make_solver(K, kind, near_null=near_null, perm=perm, tol=tol,
+                                                     symmetric=symmetric), rtol=tol)
 
     @staticmethod
     def _start(problem: MotionProblem, prescribed: np.ndarray):

@@ -204,3 +204,14 @@ def test_foil_pushed_through_the_wall_ends_in_status_3(name, tmp_path):
                          capture_output=True, text=True)
     assert run.returncode == 3, run.stderr
     assert "Traceback" not in run.stderr and (tmp_path / "diagnostic.json").is_file()
+
+
+@pytest.mark.parametrize("name", MOVERS)
+def test_the_amg_path_gives_the_direct_answer(name):
+    scene = load("foil_in_channel", f"mover.name={name}", "deformation.mode=rotation",
+                 "deformation.rotation_deg=10", f"mover.{name}.linear_tol=1e-12")
+    direct = run_move(scene)[1].displacement
+    amg = run_move(load("foil_in_channel", f"mover.name={name}", "deformation.mode=rotation",
+                        "deformation.rotation_deg=10", f"mover.{name}.linear_tol=1e-12",
+                        f"mover.{name}.linear_solver=amg"))[1].displacement
+    np.testing.assert_allclose(amg, direct, atol=1e-8 * np.abs(direct).max())

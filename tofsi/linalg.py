@@ -162,31 +162,42 @@ def rigid_body_modes(points: np.ndarray) -> np.ndarray:
 class AMGSolver:
     """Smoothed-aggregation AMG (pyamg) with CG for symmetric positive definite ``A``.
 
-    near_null : near-null-space vectors (rigid-body modes for elasticity).
+    near_null : near-null-space vectors (rigid-body modes for elasticity). The
+    coarsest level is solved by sparse LU (pyamg's default pseudo-inverse is
+    a dense SVD, seconds for a thousand unknowns). Setting up a hierarchy is
+    cheap, so a :class:`RecyclingSolver` builds a new one for every matrix
+    (``recycle = False``) instead of preconditioning GMRES with an old one.
     """
 
+    recycle = False
+
     def __init__(self, A: sp.spmatrix, near_null: np.ndarray | None = None, tol: float = 1e-10,
-                 max_iter: int = 500):
+                 max_iter: int = 500, symmetric: bool = True):
         self.A = sp.csr_matrix(A)
         self.tol, self.max_iter = tol, max_iter
-        self._ml = pyamg.smoothed_aggregation_solver(self.A, B=near_null, symmetry="symmetric",
-                                                     max_coarse=500)
+        self.accel = "cg" if symmetric else "gmres"
+        self._ml = pyamg.smoothed_aggregation_solver(
+            self.A, B=near_null, symmetry="symmetric" if symmetric else "nonsymmetric",
+            max_coarse=300, coarse_solver="splu")
         self.shape = A.shape
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         residuals: list[float] = []
-        x = self._ml.solve(b, tol=self.tol, accel="cg", maxiter=self.max_iter, residuals=residuals)
+        x = self._ml.solve(b, tol=self.tol, accel=self.accel, maxiter=self.max_iter, residuals=residuals)
         bnorm = np.linalg.norm(b)
         if not np.all(np.isfinite(x)) or (bnorm > 0 and residuals[-1] > 10 * self.tol * bnorm):
-            raise NumericalError("AMG-CG did not converge",
+            raise NumericalError(f"AMG-{self.accel.upper()} did not converge",
                                  {"residual_history": residuals[-20:], "size": self.shape[0]})
         return x
 
-    solve_transpose = solve      # symmetric
+    def solve_transpose(self, b: np.ndarray) -> np.ndarray:
+        if self.accel != "cg":
+            return AMGSolver(self.A.T, None, self.tol, self.max_iter, symmetric=False).solve(b)
+        return self.solve(b)
 
 
 def make_solver(A: sp.spmatrix, kind: str = "direct", coords=None, near_null=None, tol=1e-10,
-                perm=None):
+                perm=None, symmetric: bool = True):
     """A reusable solver of kind ``direct`` (LU) or ``amg`` (SPD systems only).
 
     perm : a precomputed fill-reducing permutation (else computed from ``coords``)
@@ -194,7 +205,7 @@ def make_solver(A: sp.spmatrix, kind: str = "direct", coords=None, near_null=Non
     if kind == "direct":
         return DirectSolver(A, coords=coords, perm=perm)
     if kind == "amg":
-        return AMGSolver(A, near_null=near_null, tol=tol)
+        return AMGSolver(A, near_null=near_null, tol=tol, symmetric=symmetric)
     raise ValueError(f"unknown linear solver {kind!r}")
 
 
@@ -254,7 +265,7 @@ class RecyclingSolver:
         ``rtol`` loosens the tolerance for this solve (inexact Newton)."""
         if not np.any(b):
             return np.zeros_like(b)
-        if self.solver is not None and not self.stale:
+        if self.solver is not None and not self.stale and getattr(self.solver, "recycle", True):
             x, ok = self._krylov(A, b, self.solver.solve, guess, rtol)
             if ok:
                 return x
@@ -264,7 +275,7 @@ class RecyclingSolver:
     def solve_transpose(self, A, b: np.ndarray) -> np.ndarray:
         if not np.any(b):
             return np.zeros_like(b)
-        if self.solver is not None and not self.stale:
+        if self.solver is not None and not self.stale and getattr(self.solver, "recycle", True):
             x, ok = self._krylov(A.T.tocsr(), b, self.solver.solve_transpose)
             if ok:
                 return x
