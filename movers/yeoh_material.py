@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofsi.fem.geometry import inverse_2x2
+
 VOIGT = ((0, 0), (1, 1), (0, 1))
 _I = np.array([0, 1, 0])            # first index of Voigt entry p
 _J = np.array([0, 1, 1])            # second index
@@ -33,12 +35,7 @@ _J = np.array([0, 1, 1])            # second index
 def invariants(F: np.ndarray):
     """``C`` (..., 2, 2), ``C^-1``, ``I1``, ``I3`` of in-plane deformation gradients."""
     C = np.matmul(np.swapaxes(F, -1, -2), F)
-    I3 = C[..., 0, 0] * C[..., 1, 1] - C[..., 0, 1] * C[..., 1, 0]
-    Cinv = np.empty_like(C)
-    Cinv[..., 0, 0] = C[..., 1, 1] / I3
-    Cinv[..., 1, 1] = C[..., 0, 0] / I3
-    Cinv[..., 0, 1] = -C[..., 0, 1] / I3
-    Cinv[..., 1, 0] = -C[..., 1, 0] / I3
+    I3, Cinv = inverse_2x2(C)
     I1 = C[..., 0, 0] + C[..., 1, 1] + 1.0
     return C, Cinv, I1, I3
 

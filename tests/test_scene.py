@@ -119,3 +119,10 @@ def test_override_values_are_parsed_as_toml(text, path, value):
 def test_override_without_equals_sign_is_rejected():
     with pytest.raises(InputError, match="KEY=VALUE"):
         parse_override("mover.name")
+
+
+def test_the_scene_reference_in_the_docs_is_current():
+    from pathlib import Path
+    from tofsi.scene import reference_table
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "scenes.md").read_text()
+    assert reference_table() in docs, "regenerate docs/scenes.md from tofsi.scene.reference_table()"

@@ -134,8 +134,26 @@ def build(cls: type, raw: Any, path: str = ""):
         raise err.under(path) from None
 
 
+def _allowed(tp, meta: dict) -> str:
+    """What a field accepts, in words."""
+    if meta.get("choices"):
+        text = describe_range(meta)[len("allowed: "):]
+        return f"list of: {text}" if typing.get_origin(tp) is tuple else text
+    if tp is bool:
+        return "true or false"
+    if tp is str:
+        return "a string"
+    if typing.get_origin(tp) is tuple:
+        inner = typing.get_args(tp)[0]
+        if typing.get_origin(inner) is tuple:
+            return f"list of [{meta.get('length') or '...'} numbers]"
+        ranged = describe_range(meta)
+        return "list of numbers" + ("" if "any finite" in ranged else f", each {ranged[len('allowed: '):]}")
+    return describe_range(meta)[len("allowed: "):]
+
+
 def documentation(cls: type, path: str = "") -> list[tuple[str, Any, str, str]]:
-    """Rows ``(key, default, allowed, meaning)`` of a record, for the README and ``--help``."""
+    """Rows ``(key, default, allowed, meaning)`` of a record (the scene reference)."""
     rows = []
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
@@ -145,5 +163,5 @@ def documentation(cls: type, path: str = "") -> list[tuple[str, Any, str, str]]:
             continue
         default = f.default if f.default is not dataclasses.MISSING else (
             f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
-        rows.append((key, default, describe_range(f.metadata), f.metadata.get("doc", "")))
+        rows.append((key, default, _allowed(hints[f.name], f.metadata), f.metadata.get("doc", "")))
     return rows

@@ -261,3 +261,29 @@ def load_scene(path: str | Path, overrides=None) -> Scene:
     """
     raw = apply_overrides(read_scene_file(path), overrides)
     return scene_from_dict(raw, source=str(path))
+
+
+def reference_table() -> str:
+    """Markdown table of every scene key: default, allowed values, meaning (docs/scenes.md)."""
+    from tofsi.config import documentation
+    rows = [("name", "(required)", "a string without slashes", "the scene's name (output folder)"),
+            ("description", "", "a string", "one line about the scene"),
+            ("mover.name", "none", "none, " + ", ".join(movers.available()),
+             "the mover (same setting as effects.mesh_motion)"),
+            ("mover.layers", [], "list of numbers, each 0 < value",
+             "stiffening factor of each element layer counted from the interface")]
+    for key, cls in _TABLES.items():
+        rows += documentation(cls, key)
+    rows += [r for r in documentation(Effects, "effects")]
+    for name in movers.available():
+        rows += documentation(movers.mover_class(name).Params, f"mover.{name}")
+
+    def show(value):
+        if isinstance(value, tuple):
+            return "[" + ", ".join(show(v) for v in value) + "]"
+        if isinstance(value, bool):
+            return str(value).lower()
+        return f'"{value}"' if isinstance(value, str) and value != "(required)" else str(value)
+    lines = ["| key | default | allowed | meaning |", "|---|---|---|---|"]
+    lines += [f"| `{k}` | {show(d)} | {a} | {doc} |".replace("|  |", "| |") for k, d, a, doc in rows]
+    return "\n".join(lines) + "\n"

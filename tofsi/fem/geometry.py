@@ -12,6 +12,17 @@ import numpy as np
 from tofsi.fem.shapes import shape_functions, shape_hessians
 
 
+def inverse_2x2(A: np.ndarray):
+    """Determinants ``(...)`` and inverses ``(..., 2, 2)`` of a stack of 2x2 matrices."""
+    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
+    inv = np.empty_like(A)
+    inv[..., 0, 0] = A[..., 1, 1] / det
+    inv[..., 1, 1] = A[..., 0, 0] / det
+    inv[..., 0, 1] = -A[..., 0, 1] / det
+    inv[..., 1, 0] = -A[..., 1, 0] / det
+    return det, inv
+
+
 def jacobians(Xe: np.ndarray, points: np.ndarray):
     """Jacobian ``J[e, g] = dx/dxi`` ``(E, G, 2, 2)``, its determinant and inverse.
 
@@ -20,12 +31,7 @@ def jacobians(Xe: np.ndarray, points: np.ndarray):
     """
     _, dN1 = shape_functions(1, points)                     # (G, 4, 2)
     J = np.tensordot(Xe, dN1, axes=([1], [1])).transpose(0, 2, 1, 3)   # (E, G, 2, 2)
-    det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
-    inv = np.empty_like(J)
-    inv[..., 0, 0] = J[..., 1, 1] / det
-    inv[..., 1, 1] = J[..., 0, 0] / det
-    inv[..., 0, 1] = -J[..., 0, 1] / det
-    inv[..., 1, 0] = -J[..., 1, 0] / det
+    det, inv = inverse_2x2(J)
     return J, det, inv
 
 
