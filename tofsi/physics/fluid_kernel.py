@@ -62,25 +62,32 @@ def fluid_element(Xe, ve, pe, alpha, density: float, viscosity: float, symmetric
         return Re, None
 
     G = w.shape[1]
-    g18 = grad.reshape(E, G, 18)
-    M = np.matmul((g18 * w[..., None]).transpose(0, 2, 1), g18).reshape(E, 9, 2, 9, 2)
-    lap = M[:, :, 0, :, 0] + M[:, :, 1, :, 1]                    # int grad N_a . grad N_b
-    Kvv = np.zeros((E, 9, 2, 9, 2), dtype=Re.dtype)
-    if symmetric:
-        Kvv += mu * M.transpose(0, 1, 4, 3, 2)                   # mu dN_a/dx_j dN_b/dx_i
+    Ke = np.zeros((E, 22, 22), dtype=Re.dtype)
+    gw = grad * w[..., None, None]                               # (E, G, 9, 2)
+    if symmetric:                                                # all gradient pairs
+        g18 = grad.reshape(E, G, 18)
+        M = np.matmul(gw.reshape(E, G, 18).transpose(0, 2, 1), g18).reshape(E, 9, 2, 9, 2)
+        lap = M[:, :, 0, :, 0] + M[:, :, 1, :, 1]
+        for i in range(2):                                       # mu dN_a/dx_j dN_b/dx_i
+            for j in range(2):
+                Ke[:, i:18:2, j:18:2] += mu * M[:, :, j, :, i]
+    else:                                                        # int grad N_a . grad N_b only
+        stacked = grad.transpose(0, 2, 1, 3).reshape(E, 9, 2 * G)
+        lap = np.matmul(gw.transpose(0, 2, 1, 3).reshape(E, 9, 2 * G), stacked.transpose(0, 2, 1))
     Nw = N2.T[None] * w[:, None, :]                              # (E, 9, G)
     diag = mu * lap + alpha[:, None, None] * np.matmul(Nw, N2)   # viscous + Brinkman
     if density:
         vgrad = np.matmul(grad, v[..., None])[..., 0]            # v . grad N_b (E, G, 9)
         diag = diag + density * np.matmul(Nw, vgrad)
+        # (dv . grad) v: rho int N_a L_ij N_b for all (i, j) in one product
+        NL = (Nw[..., None] * L.reshape(E, 1, G, 4)).transpose(0, 1, 3, 2).reshape(E, 36, G)
+        conv = (density * np.matmul(NL, N2)).reshape(E, 9, 2, 2, 9)
         for i in range(2):
             for j in range(2):
-                Kvv[:, :, i, :, j] += density * np.matmul(Nw * L[:, None, :, i, j], N2)
-    Kvv[:, :, 0, :, 0] += diag
-    Kvv[:, :, 1, :, 1] += diag
-    Kvp = -np.matmul((g18 * w[..., None]).transpose(0, 2, 1), N1)   # (E, 18, 4): -int dN_a/dx_i M_c
-    Ke = np.zeros((E, 22, 22), dtype=Re.dtype)
-    Ke[:, :18, :18] = Kvv.reshape(E, 18, 18)
+                Ke[:, i:18:2, j:18:2] += conv[:, :, i, j, :]
+    Ke[:, 0:18:2, 0:18:2] += diag
+    Ke[:, 1:18:2, 1:18:2] += diag
+    Kvp = -np.matmul(gw.reshape(E, G, 18).transpose(0, 2, 1), N1)   # (E, 18, 4): -int dN_a/dx_i M_c
     Ke[:, :18, 18:] = Kvp
     Ke[:, 18:, :18] = Kvp.transpose(0, 2, 1)
     return Re, Ke
