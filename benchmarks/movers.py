@@ -35,7 +35,7 @@ from pathlib import Path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "foil_in_channel.toml"
-REFINE = [1.8, 3.2, 6.0, 10.5]          # about 1e4, 3e4, 1e5, 3e5 nodes
+REFINE = [2.2, 3.8, 6.9, 12.0]          # about 1e4, 3e4, 1e5, 3e5 nodes
 
 
 def overrides(refine: float, mover: str, solver: str) -> list[str]:
