@@ -12,7 +12,7 @@ recommended default marked. Studies:
 * gradient -- adjoint versus finite differences (error and time per gradient).
 
 ``--docs`` writes ``docs/accuracy_vs_time.md`` and its figures (``docs/img/accuracy``);
-otherwise results go to ``--output``. About 40 minutes on two cores:
+otherwise results go to ``--output``. About two minutes on two cores:
 
     python benchmarks/accuracy_vs_time.py --docs
     python benchmarks/accuracy_vs_time.py --studies movers --quick
