@@ -192,44 +192,6 @@ STUDIES = {"movers": mover_study, "flow": flow_study, "coupling": coupling_study
 
 
 # ---- report ---------------------------------------------------------------------------
-def pareto(ax, rows, x, y, label_key, title):
-    from itertools import groupby
-
-    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
-    rows = sorted(rows, key=lambda r: str(r[label_key]))
-    for label, group in groupby(rows, key=lambda r: str(r[label_key])):
-        g = sorted(group, key=lambda r: r[x])
-        ax.plot([r[x] for r in g], [max(r[y], 1e-16) for r in g], "o-", ms=4, label=label)
-        for r in g:
-            if r.get("default"):
-                ax.plot(r[x], max(r[y], 1e-16), "r*", ms=14, zorder=5)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))   # 0.1, 0.2, 0.5, 1, ...
-    ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
-    ax.xaxis.set_minor_formatter(NullFormatter())
-    ax.set_xlabel(x.replace("_", " "))
-    ax.set_ylabel(y.replace("_", " "))
-    ax.set_title(title, fontsize=9)
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7)
-
-
-def read_rows(path: Path) -> list[dict]:
-    """Rows of a study CSV with numbers, booleans and blanks (NaN) restored."""
-    import csv
-
-    def value(text):
-        if text in ("True", "False"):
-            return text == "True"
-        try:
-            return float(text) if text else float("nan")
-        except ValueError:
-            return text
-    with open(path, newline="") as f:
-        return [{k: value(v) for k, v in row.items()} for row in csv.DictReader(f)]
-
-
 def default_row(rows: list[dict]) -> dict:
     return next(r for r in rows if r["default"])
 
@@ -307,9 +269,9 @@ def recommendations(results: dict) -> list[str]:
 
 def report(out: Path, data: Path) -> None:
     """``accuracy_vs_time.md`` in ``out`` from the study CSVs in ``data`` (figures go to ``data``)."""
-    from tofsi.output import write_text
-    from tofsi.plotting import plt, save
-    results = {name: read_rows(data / f"{name}.csv") for name in STUDIES if (data / f"{name}.csv").exists()}
+    from tofsi.output import read_csv, write_text
+    from tofsi.plotting import pareto, plt, save
+    results = {name: read_csv(data / f"{name}.csv") for name in STUDIES if (data / f"{name}.csv").exists()}
     rel = data.relative_to(out)
     lines = ["# What accuracy costs in time", "",
              f"Measured by `benchmarks/accuracy_vs_time.py` on {platform.machine()} "

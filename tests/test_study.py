@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tofsi.errors import InputError
-from tofsi.output import write_csv
+from tofsi.output import read_csv, write_csv
 from tofsi.study import Sweep, best, overrides_for, parse_sweep, points
 
 from conftest import scene_path
@@ -54,6 +54,15 @@ def test_csv_has_every_column_seen(tmp_path):
     write_csv(tmp_path / "t.csv", [{"a": 1}, {"a": 2, "b": 3}])
     rows = list(csv.DictReader(open(tmp_path / "t.csv")))
     assert rows == [{"a": "1", "b": ""}, {"a": "2", "b": "3"}]
+
+
+def test_read_csv_restores_what_write_csv_wrote(tmp_path):
+    rows = [{"value": 1e-10, "default": True, "mover": "spring", "error": float("nan")},
+            {"value": 30.0, "default": False, "mover": "yeoh"}]
+    back = read_csv(write_csv(tmp_path / "t.csv", rows))
+    assert back[0]["value"] == 1e-10 and back[0]["default"] is True and back[0]["mover"] == "spring"
+    assert np.isnan(back[0]["error"]) and np.isnan(back[1]["error"])       # blank cells come back as NaN
+    assert back[1]["value"] == 30.0 and back[1]["default"] is False
 
 
 def test_tofsi_study_sweeps_stiffening_and_reports_the_best(tmp_path):

@@ -93,6 +93,20 @@ def write_csv(path, rows: list[dict]) -> Path:
     return write_text(path, buf.getvalue())
 
 
+def read_csv(path) -> list[dict]:
+    """Rows written by :func:`write_csv`, with numbers, booleans and blanks (NaN) restored;
+    any other text stays a string."""
+    def value(text: str):
+        if text in ("True", "False"):
+            return text == "True"
+        try:
+            return float(text) if text else float("nan")
+        except ValueError:
+            return text
+    with open(path, newline="") as f:
+        return [{k: value(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
 def write_vtu(path, points: np.ndarray, cells: dict[str, np.ndarray],
               point_data: dict | None = None, cell_data: dict | None = None) -> Path:
     """Unstructured grid for ParaView. ``cells``: {"quad": (E, 4)} or {"quad9": (E, 9)}.

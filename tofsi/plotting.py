@@ -115,6 +115,31 @@ def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool
     return True
 
 
+def pareto(ax, rows: list[dict], x: str, y: str, label_key: str, title: str) -> None:
+    """Cost-accuracy plot on log-log axes: ``y`` against ``x`` for each value of ``label_key``,
+    joined in order of ``x``; rows with a true ``default`` are marked by a red star."""
+    from itertools import groupby
+
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
+    rows = sorted(rows, key=lambda r: str(r[label_key]))
+    for label, group in groupby(rows, key=lambda r: str(r[label_key])):
+        g = sorted(group, key=lambda r: r[x])
+        ax.plot([r[x] for r in g], [max(r[y], 1e-16) for r in g], "o-", ms=4, label=label)
+        for r in g:
+            if r.get("default"):
+                ax.plot(r[x], max(r[y], 1e-16), "r*", ms=14, zorder=5)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))   # 0.1, 0.2, 0.5, 1, ...
+    ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel(x.replace("_", " "))
+    ax.set_ylabel(y.replace("_", " "))
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+
+
 def plot_nodal(path, points, quads, values, title="", label="", cmap="viridis", grey=None,
                outline=None, width=8.0) -> None:
     """A nodal field on quads (two Gouraud-shaded triangles each), solid elements in grey."""
