@@ -59,7 +59,7 @@ def main(output: Path) -> dict:
         rows[name] = {"compliance_two_way": judge.model.figures(state)["compliance"],
                       "max_displacement_m": float(np.abs(state.u).max()),
                       "non_discreteness_percent": non_discreteness(judge.densities(gamma)[judge.map.design])}
-        plot_design(output / f"{name}.png", judge.model.mesh.points + state.displacement,
+        plot_design(output / f"{name}.png", judge.model.mesh.points + state.mesh_displacement,
                     judge.model.mesh.quads, state.rho, title=f"{name.replace('_', '-')} design "
                     f"(two-way compliance {rows[name]['compliance_two_way']:.4g})")
     rho_two, rho_ctrl = judge.densities(two)[judge.map.design], judge.densities(ctrl)[judge.map.design]

@@ -15,7 +15,7 @@ from tofsi import quality
 from tofsi.errors import InputError, NumericalError
 from tofsi.mesh import StructuredQuadMesh
 from tofsi.motion import motion_setup, run_move
-from tofsi.physics.elasticity import element_stiffness, lame
+from tofsi.fem.elasticity import element_stiffness, lame
 
 from conftest import load, scene_path
 

@@ -7,7 +7,7 @@ from tofsi.fem.assembly import element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.linalg import DirectSolver
 from tofsi.mesh import StructuredQuadMesh
-from tofsi.physics.elasticity import element_stiffness, lame
+from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
 from tofsi.settings import FluidSettings, StructureSettings
@@ -82,7 +82,7 @@ def test_structure_blocks_match_central_differences():
     rng = np.random.default_rng(31)
     mesh = StructuredQuadMesh(np.array([0, 0.3, 0.7, 1.2]), np.array([0, 0.4, 1.0]))
     flow = Flow(mesh, FluidSettings(viscosity=0.6))
-    s = Structure(mesh, StructureSettings(youngs_modulus=3.0, simp_penalty=3.0), flow)
+    s = Structure(mesh, StructureSettings(youngs_modulus=3.0), flow)
     u = 0.1 * rng.normal(size=s.size)
     w = rng.normal(size=flow.size)
     X = mesh.points

@@ -12,9 +12,11 @@ so a checkpoint holds every evaluation of the current stage and the last
 coupled state; ``resume`` restarts the stage from its first design and
 replays the stored evaluations bit for bit (NLopt is deterministic given the
 same values) until it passes the interruption, then computes on. Every
-computed evaluation starts its solvers' factorizations afresh and is
-warm-started from the previous evaluation's state, which a resume restores
-exactly: the resumed history equals the uninterrupted one bit for bit.
+computed evaluation creates its own solvers (so its factorizations depend on
+nothing earlier) and is warm-started from the previous evaluation's fields,
+which a resume restores exactly: the resumed history equals the
+uninterrupted one bit for bit. The checkpointed fields are the block
+system's (``model.system.names``).
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ from pathlib import Path
 import nlopt
 import numpy as np
 
-from tofsi.coupled import State
+from tofsi.blocks import State
+from tofsi.coupled import continuation
 from tofsi.errors import InputError
 from tofsi.output import atomic_write, write_csv, write_json
 
@@ -53,10 +56,6 @@ class Iteration:
     time_s: float
 
 
-def stage_parameters(design, stage: int) -> dict:
-    def pick(schedule):
-        return schedule[min(stage, len(schedule) - 1)] if schedule else None
-    return {"beta": pick(design.beta), "penalty": pick(design.penalty), "q": pick(design.brinkman_q)}
 
 
 def non_discreteness(rho: np.ndarray) -> float:
@@ -108,7 +107,6 @@ class Optimizer:
 
     def _compute(self, gamma: np.ndarray) -> dict:
         p = self.problem
-        p.reset_solvers()
         f, df = p.evaluate(gamma)
         g, dg = p.constraints(gamma)
         state = p.solve(gamma)
@@ -118,14 +116,15 @@ class Optimizer:
     def _record(self, gamma, entry, stage, change) -> None:
         if self.scale is None:                  # each stage scales by its first objective value
             self.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
-        params = stage_parameters(self.design, stage)
+        params = continuation(self.scene, stage)
         it = Iteration(len(self.history), stage, float(entry["f"]), float(entry["f"] / self.scale),
-                       float(entry["volume"]), float(entry["g"][0]), change, params["beta"],
-                       params["penalty"] or 0.0, params["q"] or 0.0,
-                       time.perf_counter() - self._t0)
+                       float(entry["volume"]), float(entry["g"][0]), change, params.beta,
+                       params.penalty, params.brinkman_q, time.perf_counter() - self._t0)
         self.history.append(it)
         if "state" in entry:                           # computed now (not replayed): save
             self._checkpoint(stage, entry["state"])
+            for earlier in self._stage_log[:-1]:       # hold one state (and its factorizations)
+                earlier.pop("state", None)
             self._write_history()
             if self.on_picture and (it.iteration % self.settings.output_every == 0):
                 self.on_picture(it.iteration, gamma, entry["state"])
@@ -139,7 +138,7 @@ class Optimizer:
             for key in ("gamma", "df", "g", "dg"):
                 log_arrays[f"e{k}_{key}"] = e[key]
             log_arrays[f"e{k}_f"] = np.array([e["f"], e["volume"]])
-        fields = {f"state_{k}": getattr(state, k) for k in ("w", "u", "x") if getattr(state, k) is not None}
+        fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
         meta = {"scene": self.scene.name, "stage": stage, "n_stage_evaluations": len(self._stage_log),
                 "scale": self.scale, "history": [asdict(h) for h in self.history],
                 "stage_start": self._stage_start.tolist()}
@@ -163,7 +162,7 @@ class Optimizer:
             replay.append({"gamma": data[f"e{k}_gamma"], "df": data[f"e{k}_df"], "g": data[f"e{k}_g"],
                            "dg": data[f"e{k}_dg"], "f": float(f), "volume": float(volume)})
         state = State(rho=data["rho"], converged=True,
-                      **{k: data[f"state_{k}"] for k in ("w", "u", "x") if f"state_{k}" in data})
+                      fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})
         return meta, replay, state
 
     # ---- the run ---------------------------------------------------------------------
@@ -184,8 +183,8 @@ class Optimizer:
             remaining = s.max_iter - len(self.history)
             if remaining <= 0:
                 break
-            params = stage_parameters(d, stage)
-            p.set_stage(beta=params["beta"], penalty=params["penalty"], q=params["q"])
+            params = continuation(self.scene, stage)
+            p.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q)
             self._stage_start = gamma.copy()
             self._stage_log, self._last = [], None
             if not (resume and stage == first_stage):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -23,9 +24,6 @@ from tofsi.config import build, coerce, option
 from tofsi.errors import InputError
 from tofsi.settings import (CoupledSettings, DesignSettings, FluidSettings, OptimizerSettings,
                             StructureSettings)
-
-Rectangle = tuple[float, float, float, float]
-
 
 @dataclass(frozen=True)
 class Geometry:
@@ -178,10 +176,43 @@ def _mover_name(raw: dict) -> str:
     return "none" if name is None else name
 
 
+ALIASES = {("structure", "simp_penalty"): ("design", "penalty"),
+           ("fluid", "brinkman_q"): ("design", "brinkman_q")}
+"""Old keys of a value that now has one key: the first entry of a continuation schedule."""
+
+
+def _resolve_aliases(raw: dict) -> dict:
+    """``raw`` with each old key moved to its schedule (a warning names the new key; a
+    conflicting value is an input error)."""
+    raw = dict(raw)
+    for (table, key), (to_table, to_key) in ALIASES.items():
+        if not isinstance(raw.get(table), dict) or key not in raw[table]:
+            continue
+        raw[table] = dict(raw[table])
+        value = raw[table].pop(key)
+        warnings.warn(f"{table}.{key} is an old name: the value is the first entry of "
+                      f"{to_table}.{to_key} (write {to_table}.{to_key} = [{value}])", FutureWarning,
+                      stacklevel=3)
+        target = dict(raw.get(to_table) or {}) if isinstance(raw.get(to_table, {}), dict) else None
+        if target is None:
+            continue                                    # a malformed table: reported by its build
+        if to_key in target:
+            schedule = target[to_key]
+            first = schedule[0] if isinstance(schedule, (list, tuple)) and schedule else schedule
+            if first != value:
+                raise InputError(f"{table}.{key}", value, f"conflicts with {to_table}.{to_key} = "
+                                 f"{schedule!r}, whose first entry is the same value; set one of them")
+        else:
+            target[to_key] = [value]
+        raw[to_table] = target
+    return raw
+
+
 def scene_from_dict(raw: dict, source: str = "") -> Scene:
     """Validate raw tables (as read from TOML) into a :class:`Scene`."""
     if not isinstance(raw, dict):
         raise InputError("scene", raw, "expected a table")
+    raw = _resolve_aliases(raw)
     for key in raw:
         if key not in _TOP:
             raise InputError(key, raw[key], "unknown key; allowed keys: " + ", ".join(sorted(_TOP)))

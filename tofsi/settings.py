@@ -31,7 +31,6 @@ class FluidSettings:
                              "developed flow) or (-p I + 2 mu eps(v)) n = 0")
     alpha_max: float = option(1e5, gt=0, doc="Brinkman friction of solid [kg/(m^3 s)]")
     alpha_min: float = option(0.0, ge=0, doc="Brinkman friction of fluid [kg/(m^3 s)]")
-    brinkman_q: float = option(0.1, gt=0, doc="convexity q of the Brinkman interpolation")
     newton_tol: float = option(1e-10, gt=0, lt=1, doc="Newton tolerance on the residual, "
                                "relative to the residual of the zero state")
     newton_max_iter: int = option(25, ge=1, le=1000, doc="Newton iterations per solve")
@@ -56,7 +55,6 @@ class StructureSettings:
     youngs_modulus: float = option(1e5, gt=0, doc="Young's modulus of solid E0 [Pa]")
     poisson_ratio: float = option(0.3, gt=-1.0, lt=0.5, doc="Poisson's ratio")
     e_min_ratio: float = option(1e-9, gt=0, lt=1, doc="Emin / E0 of void (fluid) elements")
-    simp_penalty: float = option(3.0, ge=1, le=10, doc="SIMP exponent p in E = Emin + rho^p (E0 - Emin)")
     clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
                                       doc="channel sides where the structure is clamped")
     load_exponent: float = option(1.0, ge=1, le=10,
@@ -93,9 +91,13 @@ class DesignSettings:
     beta: tuple[float, ...] = option((1.0, 2.0, 4.0, 8.0, 16.0), ge=0, le=1000,
                                      doc="projection sharpness schedule (one value per stage)")
     penalty: tuple[float, ...] = option((3.0,), ge=1, le=10,
-                                        doc="SIMP exponent schedule (per stage; last value kept)")
+                                        doc="SIMP exponent p of E = Emin + rho^p (E0 - Emin), one "
+                                            "value per stage (last value kept); `tofsi solve` uses "
+                                            "the first (alias: structure.simp_penalty)")
     brinkman_q: tuple[float, ...] = option((0.1,), gt=0,
-                                           doc="Brinkman q schedule (per stage; last value kept)")
+                                           doc="convexity q of the Brinkman interpolation, one value "
+                                               "per stage (last value kept); `tofsi solve` uses the "
+                                               "first (alias: fluid.brinkman_q)")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
                                   "(path relative to the working directory); empty: uniform")

@@ -23,7 +23,7 @@ def run(scene, args, ctx) -> dict:
     ctx.say(f"{scene.name}: {problem.n_design} design variables; "
             f"{problem.model.mesh.n_elements} elements; seed {args.seed}")
     state = problem.solve(gamma)
-    rows = check_blocks(problem.model, state, args.seed) + check_totals(problem, gamma, args.seed)
+    rows = check_blocks(problem.model.system, state, args.seed) + check_totals(problem, gamma, args.seed)
     ctx.say(f"{'check':28s} {'Taylor rate':>11s} {'CD rel. error':>14s}  result")
     for r in rows:
         rate = "linear" if r["linear"] else f"{r['min_rate']:.3f}"

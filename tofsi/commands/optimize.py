@@ -21,7 +21,7 @@ class Pictures:
     def __call__(self, iteration, gamma, state) -> None:
         p, mesh = self.problem, self.problem.model.mesh
         tag = iteration if iteration == "final" else f"{iteration:04d}"
-        X = mesh.points if state.x is None else mesh.points + state.displacement
+        X = mesh.points if state.x is None else mesh.points + state.mesh_displacement
         speed = None
         point_data = {}
         if state.w is not None:

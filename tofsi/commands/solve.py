@@ -13,7 +13,7 @@ from tofsi.plotting import plot_mesh, plot_nodal
 def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None:
     """VTU (biquadratic cells: the Q2 velocity exactly) and PNG pictures of a state."""
     mesh = model.mesh
-    X = mesh.points if state.x is None else mesh.points + state.displacement
+    X = mesh.points if state.x is None else mesh.points + state.mesh_displacement
     to9 = mesh.edges9                                   # Q1 fields -> Q2 nodes (bilinear)
     point_data = {}
     if state.w is not None:
@@ -23,7 +23,7 @@ def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None
     if state.u is not None:
         point_data["structure_displacement"] = state.u.reshape(-1, 2)[to9].mean(axis=1)
     if state.x is not None:
-        point_data["mesh_displacement"] = state.displacement[to9].mean(axis=1)
+        point_data["mesh_displacement"] = state.mesh_displacement[to9].mean(axis=1)
     cell_data = {"density": state.rho, "region": mesh.region,
                  "skewness": quality.skewness(X, mesh.quads)}
     write_vtu(ctx.path(f"{name}.vtu"), mesh.points9(X), {"quad9": mesh.quads9},

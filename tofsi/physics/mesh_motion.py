@@ -1,6 +1,8 @@
-"""The mesh-motion block D(x; u, rho): a mover between the structure and the fluid mesh.
+"""Mesh motion: a scene's mover between the structure and the fluid mesh.
 
-Two forms, chosen by the scene:
+The one entry point for moving a scene's fluid mesh, used by the coupled
+model (the field ``x`` of :mod:`tofsi.physics.fields`) and by the mesh-motion
+studies (:mod:`tofsi.motion`). Two forms, chosen by the scene:
 
 * explicit interface (scenes without a design region): the non-solid quads
   move; every solid node follows the structure (``x = u``) and every channel
@@ -22,13 +24,11 @@ import numpy as np
 import scipy.sparse as sp
 
 import movers
-from movers.base import MotionProblem
+from movers.base import MotionProblem, MoveResult
 from tofsi.layers import element_layers, stiffening_field
-from tofsi.mesh import SIDES, SOLID
+from tofsi.mesh import SOLID
 
-
-def boundary_nodes(mesh) -> np.ndarray:
-    return np.unique(np.concatenate([mesh.side_nodes(s) for s in SIDES]))
+LAYERS_SHOWN = 10          # element layers counted (and written to outputs) at least
 
 
 def node_element_table(quads: np.ndarray, n_nodes: int) -> np.ndarray:
@@ -69,21 +69,29 @@ class MeshMotion:
         self.mesh = mesh
         self.mover = movers.mover_class(scene.mover.name)(scene.mover.options)
         self.blended = scene.has_design
-        boundary = boundary_nodes(mesh)
+        boundary = mesh.boundary_nodes
         solid = mesh.region == SOLID
-        layer = element_layers(mesh.incidence, mesh.interface_nodes, ~solid,
-                               n_layers=max(len(scene.mover.layers), 1))
-        factors = stiffening_field(layer, scene.mover.layers)
+        self.layer = element_layers(mesh.incidence, mesh.interface_nodes, ~solid,
+                                    n_layers=max(len(scene.mover.layers), LAYERS_SHOWN))
+        factors = stiffening_field(self.layer, scene.mover.layers)
         if self.blended:
-            moving = np.arange(mesh.n_elements)
-            fixed = boundary
+            moving, fixed = np.arange(mesh.n_elements), boundary
+            self.follows = np.setdiff1d(np.arange(mesh.n_nodes), boundary)
         else:
-            moving = np.flatnonzero(~solid)
-            fixed = np.union1d(mesh.nodes_of(SOLID), boundary)
+            moving, fixed = np.flatnonzero(~solid), np.union1d(mesh.nodes_of(SOLID), boundary)
+            self.follows = np.setdiff1d(mesh.nodes_of(SOLID), boundary)
         self.moving = moving
-        self.follows = np.setdiff1d(fixed if not self.blended else np.arange(mesh.n_nodes), boundary)
         self.base = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
-        self._blend_cache = None
+
+    @property
+    def path_dependent(self) -> bool:
+        """True when the mover has no residual form (increments on the updated mesh)."""
+        return self.mover.path_dependent
+
+    @property
+    def fixed_dofs(self) -> np.ndarray:
+        """Dofs of the nodes whose motion is prescribed (boundary, and solid in the explicit form)."""
+        return self.base.fixed_dofs
 
     # ---- maps between fields ------------------------------------------------------
     def problem(self, rho=None) -> MotionProblem:
@@ -105,34 +113,30 @@ class MeshMotion:
         u_bar[self.follows] = np.asarray(t_bar).reshape(-1, 2)[self.follows]
         return u_bar.ravel()
 
-    def density_transpose(self, rho, f_bar: np.ndarray, s_bar: np.ndarray) -> np.ndarray:
-        """Chain ``(stiffening_bar, blend_bar)`` to ``rho_bar (E,)`` (stiffening does not depend on rho)."""
+    def density_transpose(self, rho, s_bar: np.ndarray) -> np.ndarray:
+        """Chain the blend's adjoint ``s_bar`` (n,) to ``rho_bar (E,)`` (stiffening does not depend on rho)."""
         if not self.blended:
             return np.zeros(self.mesh.n_elements)
         _, ds = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
         return ds.T @ s_bar
 
-    # ---- solving and derivatives ---------------------------------------------------------
-    def solve(self, u, rho=None, progress=None):
-        """Mesh displacement ``x (n, 2)`` and the mover's result."""
+    # ---- moving and derivatives ------------------------------------------------------
+    def move(self, u, rho=None, progress=None) -> MoveResult:
+        """Move the mesh with the structure's displacement ``u``: the mover's result, whose
+        ``displacement`` ``(n, 2)`` is the mesh displacement ``x``."""
         problem = self.problem(rho)
         result = self.mover.move(problem, self.target(u), progress)
         result.problem = problem
-        return result.displacement, result
+        return result
 
-    def vjp(self, result, x_bar, rho=None):
+    def vjp(self, result: MoveResult, x_bar, rho=None):
         """``(u_bar (2n,), rho_bar (E,))`` for ``x_bar`` on the mesh displacement."""
-        t_bar, f_bar, s_bar = self.mover.vjp(result.problem, result, x_bar)
-        return self.target_transpose(t_bar), self.density_transpose(rho, f_bar, s_bar)
-
-    @property
-    def has_residual(self) -> bool:
-        return not self.mover.path_dependent
+        t_bar, _, s_bar = self.mover.vjp(result.problem, result, x_bar)
+        return self.target_transpose(t_bar), self.density_transpose(rho, s_bar)
 
     def residual(self, x, u, rho=None):
         """``D (2n,)`` and ``D_x`` (true Jacobian) for residual movers."""
-        problem = self.problem(rho)
-        return self.mover.residual(problem, x, self.target(u))
+        return self.mover.residual(self.problem(rho), x, self.target(u))
 
     def structure_partial(self, rho=None) -> sp.csr_matrix:
         """``D_u`` (2n x 2n): ``-(P_p + S_c)`` restricted to the nodes that follow the structure."""
@@ -141,14 +145,18 @@ class MeshMotion:
         follow_dofs = np.ravel(2 * self.follows[:, None] + np.arange(2))
         fixed = problem.bc.is_fixed
         diag[follow_dofs[fixed[follow_dofs]]] = -1.0
-        if self.blended:
-            blend = self.mover._blend(problem)
+        blend = self.mover.blend(problem)
+        if blend is not None:
             free = follow_dofs[~fixed[follow_dofs]]
             diag[free] = -blend.diag[free]
         return sp.diags(diag).tocsr()
 
     def partials_transpose(self, x, u, rho, lam):
         """``lam^T D_u`` (2n,) and ``lam^T D_rho`` (E,) for residual movers (no solve)."""
-        problem = self.problem(rho)
-        t_bar, f_bar, s_bar = self.mover.residual_partials(problem, x, self.target(u), lam)
-        return self.target_transpose(t_bar), self.density_transpose(rho, f_bar, s_bar)
+        t_bar, _, s_bar = self.mover.residual_partials(self.problem(rho), x, self.target(u), lam)
+        return self.target_transpose(t_bar), self.density_transpose(rho, s_bar)
+
+    def transposed_solve(self, x, rho, rhs, solver=None) -> np.ndarray:
+        """``D_x^-T rhs`` at ``x`` (residual movers); ``solver`` from the forward move."""
+        lam, lam_p = self.mover.transposed_solve(self.problem(rho), x, rhs, solver)
+        return lam + lam_p
