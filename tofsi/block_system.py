@@ -262,7 +262,7 @@ class BlockSystem:
                      ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms)))
             if max(norms) <= s.tol:
                 state.linearizations.update(lins)
-                state.coupled = CoupledLinearization(self, comp, lins, solver)
+                state.coupled[comp] = CoupledLinearization(self, comp, lins, solver)
                 state.reports["coupling"] = {"method": "monolithic", "history": history}
                 return
             if it == s.max_iter:

@@ -204,7 +204,7 @@ class State:
     """A solved coupled state: the fields (absent ones are None) and what produced them.
 
     linearizations : each block's linearization at the state (the adjoint's input)
-    coupled : the monolithic Newton's linearization of the whole system, if any
+    coupled : the monolithic Newton's linearization of each cycle it solved, by its fields
     """
 
     rho: np.ndarray
@@ -213,7 +213,7 @@ class State:
     converged: bool = False
     reports: dict = field(default_factory=dict)
     linearizations: dict = field(default_factory=dict)
-    coupled: object = None
+    coupled: dict = field(default_factory=dict)
 
     @property
     def w(self) -> np.ndarray | None:

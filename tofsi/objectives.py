@@ -38,7 +38,7 @@ def _corner_partial(fn, Xe: np.ndarray, quads: np.ndarray, n_nodes: int) -> np.n
 class Compliance:
     """The work of the fluid load on the structure's displacement, ``f(w, x, rho) . u`` [J/m]."""
 
-    name = "compliance"
+    name, needs = "compliance", "structure"
 
     def value(self, model, state) -> float:
         return float(model.structure.load(state.w, state.mesh_displacement, state.rho, state.params) @ state.u)
@@ -60,7 +60,7 @@ class Compliance:
 class Dissipation:
     """Borrvall & Petersson's functional ``1/2 int (mu grad v : grad v + alpha |v|^2)`` [W/m]."""
 
-    name = "dissipation"
+    name, needs = "dissipation", "fluid"
 
     @staticmethod
     def element_values(flow, Xe, w, rho, params=None) -> np.ndarray:
@@ -104,7 +104,7 @@ class Dissipation:
 class PressureDrop:
     """Mean inlet pressure minus mean outlet pressure [Pa]."""
 
-    name = "pressure-drop"
+    name, needs = "pressure-drop", "fluid"
 
     @staticmethod
     def _weights(flow, P) -> np.ndarray:

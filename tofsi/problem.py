@@ -39,7 +39,7 @@ class Problem:
         self.scene = scene
         self.model = CoupledModel(scene, mesh)
         d = scene.design
-        needs = {"compliance": "structure", "dissipation": "fluid", "pressure-drop": "fluid"}[d.objective]
+        needs = OBJECTIVES[d.objective].needs                 # the effect it is a figure of
         if getattr(scene.effects, needs) == "none":
             raise InputError("design.objective", d.objective, f"needs effects.{needs}")
         self.params: Continuation = self.model.params

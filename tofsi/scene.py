@@ -201,7 +201,7 @@ def _resolve_aliases(raw: dict) -> dict:
             first = schedule[0] if isinstance(schedule, (list, tuple)) and schedule else schedule
             if first != value:
                 raise InputError(f"{table}.{key}", value, f"conflicts with {to_table}.{to_key} = "
-                                 f"{schedule!r}, whose first entry is the same value; set one of them")
+                                 f"{schedule!r}: the old key is that schedule's first entry; set one of them")
         else:
             target[to_key] = [value]
         raw[to_table] = target

@@ -75,12 +75,23 @@ class CoupledSettings:
     relaxation: float = option(0.5, gt=0, le=1, doc="first Aitken relaxation factor")
 
 
+def objective_names() -> tuple[str, ...]:
+    """The objectives' registry, read when a scene is validated (an objective is added in
+    :mod:`tofsi.objectives` alone)."""
+    from tofsi.objectives import OBJECTIVES          # on use: it pulls in the physics kernels
+    return tuple(OBJECTIVES)
+
+
 @dataclass(frozen=True)
 class DesignSettings:
     """Density design: objective, volume, filter and projection (table ``[design]``)."""
 
-    objective: str = option("compliance", choices=("compliance", "dissipation", "pressure-drop"),
-                            doc="quantity to minimize")
+    objective: str = option("compliance", choices=objective_names,
+                            doc="quantity to minimize (tofsi.objectives.OBJECTIVES): compliance, "
+                                "f.u of the fluid load [J/m]; dissipation, Borrvall-Petersson's "
+                                "1/2 int (mu grad v:grad v + alpha |v|^2) [W/m], half the "
+                                "dissipated_power figure when v = 0 on the whole boundary; "
+                                "pressure-drop, mean inlet minus outlet pressure [Pa]")
     volume_fraction: float = option(0.25, gt=0, lt=1,
                                     doc="upper bound of the constrained phase's fraction of the "
                                         "design region")

@@ -80,7 +80,7 @@ def points(sweeps: list[Sweep]) -> list[dict]:
     return [dict(zip(keys, combo)) for combo in itertools.product(*(s.values for s in sweeps))]
 
 
-def overrides_for(point: dict, base: dict | None = None) -> list[str]:
+def overrides_for(point: dict) -> list[str]:
     """Override strings for a sweep point; ``KEY[i]`` entries join into one list."""
     lists: dict[str, dict[int, object]] = {}
     out = []

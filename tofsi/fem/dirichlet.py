@@ -46,10 +46,6 @@ class DirichletOperator:
                                               extra_diagonal=self.fixed)
         return self._row_pattern.assemble(np.where(self.keep_rows, Ke, 0.0), diagonal=1.0)
 
-    def free_rows_vector(self, r: np.ndarray) -> np.ndarray:
-        """``r`` with the entries of fixed dofs zeroed (same as :meth:`homogenize`)."""
-        return self.homogenize(r)
-
     def free_rows(self, M):
         """``M`` with the rows of fixed dofs zeroed (a block coupling into this field)."""
         return sp.diags((~self.is_fixed).astype(float)) @ M

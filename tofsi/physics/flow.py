@@ -216,7 +216,7 @@ class Flow:
             self._perm = nested_dissection(self.grid(), last=self.pressure_dofs)
         return DirectSolver(A, perm=self._perm)
 
-    def solve(self, x=None, rho=None, w0=None, progress=None, params=None) -> tuple[np.ndarray, FlowReport]:
+    def solve(self, x=None, rho=None, w0=None, params=None) -> tuple[np.ndarray, FlowReport]:
         """Steady flow on the mesh moved by ``x`` with densities ``rho``; raises on failure."""
         solution = self.newton_solve(x, rho, w0, params)
         return solution.w, solution.report
