@@ -72,6 +72,13 @@ class Linearization(ABC):
     def __init__(self, block: "FieldBlock", fields: Fields, rho, params: Continuation):
         self.block, self.rho, self.params = block, rho, params
         self.fields = {k: (None if v is None else np.array(v, dtype=float)) for k, v in fields.items()}
+        self._kept: dict = {}
+
+    def kept(self, key, build: Callable):
+        """``build()`` once per ``key`` (a linearization belongs to one point: nothing goes stale)."""
+        if key not in self._kept:
+            self._kept[key] = build()
+        return self._kept[key]
 
     @property
     def value(self) -> np.ndarray:
