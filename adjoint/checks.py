@@ -79,7 +79,7 @@ def check_blocks(system, state, seed: int = 0, cd_tol: float = 1e-6) -> list[dic
     rng = np.random.default_rng(seed)
     rho, params = state.rho, state.params
     rows = []
-    h = 1e-6
+    h = 1e-4                   # times directions of 1 % of the field: steps of 1e-6 of it
     for block in system.blocks:
         lin = state.linearizations[block.name]
         if block.has_residual:

@@ -29,6 +29,7 @@ from tofsi.errors import InputError
 from tofsi.mesh import DESIGN, SOLID
 from tofsi.physics.fields import FlowField, MotionField, StructureField
 from tofsi.physics.flow import Flow
+from tofsi.physics.fluid_load import FluidForce
 from tofsi.physics.mesh_motion import MeshMotion
 from tofsi.physics.structure import Structure
 
@@ -63,6 +64,9 @@ class CoupledModel:
                 raise InputError("effects.structure", e.structure,
                                  "the structure is loaded by the flow; set effects.fluid too")
             self.structure = Structure(self.mesh, scene.structure, self.flow)
+        has_solid = bool(np.isin(self.mesh.region, (SOLID, DESIGN)).any())
+        self.force = (self.structure.force if self.structure is not None else
+                      FluidForce(self.flow, scene.structure.load) if self.flow is not None and has_solid else None)
         self.two_way = (e.coupling == "two-way" and e.mesh_motion != "none"
                         and self.structure is not None)
         self.motion = MeshMotion(self.mesh, scene) if self.two_way else None
@@ -105,11 +109,15 @@ class CoupledModel:
 
     # ---- figures --------------------------------------------------------------------------
     def figures(self, state: State) -> dict:
-        """Flow and structure figures of a state (pressure drop, drag, compliance, ...)."""
+        """Flow and structure figures of a state: pressure drop, dissipation, drag and lift (the
+        resultant of the fluid load on the solid, with or without the structure effect),
+        compliance, largest displacement."""
         out = {}
         X = state.mesh_displacement
         if self.flow is not None and state.w is not None:
             out.update(self.flow.figures(state.w, X, state.rho, state.params))
+            if self.force is not None:                   # the force on the solid phase [N/m]
+                out["drag"], out["lift"] = self.force.resultant(state.w, X, state.rho, state.params)
         if self.structure is not None and state.u is not None:
             out.update(self.structure.figures(state.u, state.w, X, state.rho, state.params))
         return out

@@ -44,16 +44,13 @@ class Compliance:
         return float(model.structure.load(state.w, state.mesh_displacement, state.rho, state.params) @ state.u)
 
     def partials(self, model, state) -> dict:
-        st, X, rho, params = model.structure, state.mesh_displacement, state.rho, state.params
-        B = st.load_operators(X)
-        ue, we = state.u[st.dofs], state.w[model.flow.dofs]
-        psi = st.weight(rho, params)
-        out = {"u": st.load(state.w, X, rho, params, B),
-               "w": assemble_vector(model.flow.dofs, np.einsum("eab,ea->eb", B, ue) * psi[:, None],
-                                    model.flow.size),
-               "rho": np.einsum("ea,eab,eb->e", ue, B, we) * st.weight_derivative(rho, params)}
+        st, X, rho, params, u = model.structure, state.mesh_displacement, state.rho, state.params, state.u
+        force = st.force
+        out = {"u": st.load(state.w, X, rho, params),
+               "w": force.fluid_partial_transpose(u, state.w, X, rho, params),
+               "rho": np.einsum("ea,ea->e", u[st.dofs], force.density_vectors(state.w, X, rho, params))}
         if model.two_way:
-            out["x"] = -(st.shape_partial(state.w, X, rho, params).T @ state.u)
+            out["x"] = force.shape_partial(state.w, X, rho, params).T @ u
         return out
 
 

@@ -57,9 +57,16 @@ class StructureSettings:
     e_min_ratio: float = option(1e-9, gt=0, lt=1, doc="Emin / E0 of void (fluid) elements")
     clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
                                       doc="channel sides where the structure is clamped")
+    load: str = option("reaction", choices=("reaction", "stress-divergence"),
+                       doc="the fluid's force on the solid: reaction, the momentum-consistent "
+                           "reaction of the fluid residual (its resultant tends to the no-slip "
+                           "body's drag and lift); stress-divergence, Lundgaard et al. 2018's "
+                           "volume form of the total stress inside the solid (loses the viscous "
+                           "shear of an unresolved Brinkman layer; for reproducing published results)")
     load_exponent: float = option(1.0, ge=1, le=10,
-                                  doc="fluid load weight rho^k (1: Lundgaard et al.; the SIMP "
-                                      "exponent keeps gray elements' displacement bounded)")
+                                  doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
+                                      "et al.; the SIMP exponent keeps gray elements' displacement "
+                                      "bounded)")
 
 
 @dataclass(frozen=True)

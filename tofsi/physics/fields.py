@@ -205,7 +205,7 @@ class StructureLinearization(_EliminatedLinearization):
     def coupling(self, other):
         st, w = self.st, self.fields["w"]
         if other == "w":
-            return self.kept("S_w", lambda: st.bc.free_rows(st.fluid_partial(self.X, self.rho, self.params)))
+            return self.kept("S_w", lambda: st.bc.free_rows(st.fluid_partial(w, self.X, self.rho, self.params)))
         if other == "x" and "x" in self.block.inputs:
             return self.kept("S_x", lambda: st.bc.free_rows(st.shape_partial(w, self.X, self.rho, self.params)))
         return None
@@ -217,7 +217,7 @@ class StructureLinearization(_EliminatedLinearization):
     def transpose_partials(self, lam):
         lam = self.block.homogenize(lam)
         st, w = self.st, self.fields["w"]
-        bars = {"w": st.fluid_partial_transpose(lam, self.X, self.rho, self.params)}
+        bars = {"w": st.fluid_partial_transpose(lam, w, self.X, self.rho, self.params)}
         if "x" in self.block.inputs:
             bars["x"] = self.coupling("x").T @ lam
         rho_bar = np.einsum("ea,ea->e", st.density_vectors(self.value, w, self.X, self.rho, self.params),
