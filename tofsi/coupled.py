@@ -135,6 +135,7 @@ class CoupledModel:
                 omega = -omega * float(r_prev @ dr) / max(float(dr @ dr), 1e-300)
             change = np.linalg.norm(r) / max(np.linalg.norm(u_new), 1e-300)
             history.append({"iteration": k, "relative_change": change, "omega": omega})
+            log.info("partitioned coupling %d: relative change of u %.3e, relaxation %.3f", k, change, omega)
             if change <= s.tol:
                 u = u_new
                 x_arr, result = self.motion.solve(u, rho)
@@ -213,6 +214,7 @@ class CoupledModel:
                               self.flow.residual(self.flow.initial(), x.reshape(-1, 2), rho))), 1e-300))
             norms = [np.linalg.norm(r) / sc for r, sc in zip((S, D, F), scales)]
             history.append({"iteration": it, "S": norms[0], "D": norms[1], "F": norms[2]})
+            log.info("monolithic Newton %d: |S| %.3e, |D| %.3e, |F| %.3e (scaled; tol %.1e)", it, *norms, s.tol)
             if max(norms) <= s.tol:
                 return State(rho=rho, w=w, u=u, x=x, reports={
                     "coupling": {"method": "monolithic", "history": history}})
