@@ -29,6 +29,7 @@ def run(scene, args, ctx) -> dict:
         rate = "linear" if r["linear"] else f"{r['min_rate']:.3f}"
         ctx.say(f"{r['check']:28s} {rate:>11s} {r['cd_error']:14.2e}  {'ok' if r['passed'] else 'FAILED'}")
     passed = all(r["passed"] for r in rows)
+    ctx.begin()
     write_json(ctx.path("check_gradients.json"), {"passed": passed, "checks": rows})
     ctx.exit_status = 0 if passed else 1
     return {"scene": scene.name, "passed": passed, "checks": rows, "outputs": list(ctx.written)}
