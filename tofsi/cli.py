@@ -164,12 +164,14 @@ def _run(args, argv) -> int:
             ctx.finish(2)
         return _error(f"tofsi: error: {err}", {"error": str(err), "key": err.key}, args.json, 2)
     except NumericalError as err:
-        ctx.begin()
-        path = ctx.path("diagnostic.json")
-        write_json(path, {"error": str(err), **err.diagnostic})
-        ctx.extra.setdefault("stop_reason", "numerical failure" if args.command == "optimize" else None)
-        ctx.finish(3)
-        extra = hint(err, scene)
+        path = None
+        if ctx is not None:                        # the diagnostic goes beside the results
+            ctx.begin()
+            path = ctx.path("diagnostic.json")
+            write_json(path, {"error": str(err), **err.diagnostic})
+            ctx.extra.setdefault("stop_reason", "numerical failure" if args.command == "optimize" else None)
+            ctx.finish(3)
+        extra = hint(err, scene, args.command)
         quality = err.diagnostic.get("quality", {})
         payload = {"error": str(err), "converged": False, "diagnostic": str(path),
                    **{k: quality[k] for k in QUALITY if k in quality}}
