@@ -78,7 +78,7 @@ def test_keys_that_cannot_change_the_replayed_history_may_differ(interrupted, tm
     assert len(replayed) == 6 and len(history) == 12
     assert without_time(history[:6]) == without_time(replayed)
     record = json.loads((out / "run.json").read_text())
-    assert record["resumed_from"] is not None and record["exit_status"] == 0
+    assert record["exit_status"] == 0 and record["stop_reason"] == "max_iter"
 
 
 def test_max_iter_below_the_checkpoint_is_refused(interrupted, tmp_path):
