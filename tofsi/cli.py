@@ -89,8 +89,9 @@ def build_parser() -> argparse.ArgumentParser:
                                 "the same as --set design.initial=FILE")
             p.add_argument("--stage", default="0", metavar="N|last",
                            help="continuation stage whose projection, SIMP penalty and Brinkman q "
-                                "apply (default 0: optimize's first iteration of this design; "
-                                "last: the final design's figures in result.json)")
+                                "apply (default 0: optimize's first iteration from this design; "
+                                "result.json's stage: that run's final figures; last: the "
+                                "schedule's last stage)")
         if name == "check-gradients":
             p.add_argument("--seed", type=int, default=0, help="seed of the random design and directions")
     return parser

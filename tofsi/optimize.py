@@ -263,6 +263,7 @@ class Optimizer:
                    "non_discreteness_percent": non_discreteness(rho),
                    "wall_time_s": time.perf_counter() - self._t0,
                    "evaluations_computed": p.evaluations, "stop_reason": self.stop_reason,
+                   "stage": self.history[-1].stage if self.history else 0,     # of these figures
                    **p.model.figures(state)}
         self._write_history()
         write_json(self.output / "result.json", figures)

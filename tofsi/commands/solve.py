@@ -4,8 +4,9 @@ A scene with a design region is analysed through the same design map as
 ``tofsi optimize``: the uniform design at the volume bound, or a saved design
 (``design.initial`` or ``--design FILE``), filtered and projected with the
 parameters of continuation stage ``--stage`` (default 0), so ``solve`` of a
-design reproduces ``optimize``'s first iteration from it, and ``--stage last``
-the figures of a finished run's ``result.json``.
+design reproduces ``optimize``'s first iteration from it, and ``--stage N``
+with the ``stage`` of a run's ``result.json`` that run's final figures
+(``last``: the schedule's last stage, where a completed run ends).
 """
 
 from __future__ import annotations
