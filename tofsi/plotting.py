@@ -98,7 +98,8 @@ def _mark_failed(ax, xs, ys, label) -> None:
     ys = np.asarray(ys, dtype=float)
     finite = np.isfinite(ys)
     xs = np.asarray(xs, dtype=float)
-    ax.plot(xs[finite], ys[finite], "x", color="red", ms=7, mew=1.5, label=label, zorder=5)
+    if finite.any():
+        ax.plot(xs[finite], ys[finite], "x", color="red", ms=7, mew=1.5, label=label, zorder=5)
     if (~finite).any():
         ax.plot(xs[~finite], np.full((~finite).sum(), 0.02), "x", color="red", ms=7, mew=1.5,
                 transform=ax.get_xaxis_transform(), clip_on=False,
