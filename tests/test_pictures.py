@@ -50,6 +50,8 @@ def check_layout(fig) -> None:
     for t in titles:
         box = t.get_window_extent(renderer)
         assert not any(overlap(box, f) for f in frames), f"title {t.get_text()[:40]!r} overlaps an axes"
+    for legend in fig.legends:                                   # figure legends sit outside
+        assert not any(overlap(legend.get_window_extent(renderer), f) for f in frames)
     for i, a in enumerate(titles):
         for b in titles[i + 1:]:
             assert not overlap(a.get_window_extent(renderer), b.get_window_extent(renderer))
@@ -103,7 +105,7 @@ def test_convergence_has_units_and_a_legend_for_its_stage_lines(figures):
                               objective_label=plotting.OBJECTIVE_LABELS["compliance"])
     fig = figures[0]
     check_layout(fig)
-    legend = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+    legend = [t.get_text() for lg in fig.legends for t in lg.get_texts()]
     assert legend == ["compliance [J/m]", "volume constraint g", "new continuation stage"]
     stage_lines = [ln for ln in fig.axes[0].get_lines() if ln.get_linestyle() == "--"]
     assert [ln.get_xdata()[0] for ln in stage_lines] == [4, 8, 12]

@@ -266,7 +266,8 @@ def plot_convergence(path, history: list[dict], title="", objective_label="objec
         ax.annotate(f"beta {history[k]['beta']:g}", (history[k]["iteration"], 1.0),
                     xycoords=("data", "axes fraction"), xytext=(2, -10), textcoords="offset points",
                     fontsize=7, color="0.35")
-    ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper right")
+    fig.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="outside lower center",
+               ncols=len(lines), frameon=False)
     ax.grid(alpha=0.3, which="both")
     set_title(fig, title)
     save(fig, path)
