@@ -112,8 +112,8 @@ def write_design(path, kind, n):
 def test_a_bad_saved_design_exits_2_with_a_plain_message(kind, says, tmp_path):
     """design.initial values outside [0, 1] were clipped silently; a text file got numpy's
     advice about pickles. Now: one line naming design.initial, saying what is wrong."""
-    import tofsi
-    n = tofsi.Problem(tofsi.load_scene(OPT, ["mesh.h_min=0.1", "mesh.h_max=0.1"])).n_design
+    import tofsi as toolkit
+    n = toolkit.Problem(toolkit.load_scene(OPT, ["mesh.h_min=0.1", "mesh.h_max=0.1"])).n_design
     write_design(tmp_path / "design.npy", kind, n)
     before = sorted(os.listdir(tmp_path))
     run = tofsi(["optimize", OPT, "--output", "out", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1",
@@ -150,13 +150,13 @@ def test_overlapping_solids_merge_into_their_union():
     """Two overlapping rectangles mesh as their union: the solid area is the union's, 0.7 x 0.2
     (the overlap counted once), and the result equals the single-rectangle scene's."""
     import numpy as np
-    import tofsi
+    import tofsi as toolkit
     from tofsi.channel import build_mesh
     from tofsi.mesh import SOLID
     from tofsi.quality import signed_area
 
     def solid_area(solids):
-        scene = tofsi.load_scene(FOIL, [f"geometry.solids={solids}", "mesh.h_min=0.025", "mesh.h_max=0.05"])
+        scene = toolkit.load_scene(FOIL, [f"geometry.solids={solids}", "mesh.h_min=0.025", "mesh.h_max=0.05"])
         mesh = build_mesh(scene.geometry, scene.mesh)
         return signed_area(mesh.points, mesh.quads[mesh.region == SOLID]).sum()
     assert solid_area("[[0.5, 1.0, 0.4, 0.6], [0.8, 1.2, 0.4, 0.6]]") == pytest.approx(0.7 * 0.2, rel=1e-12)

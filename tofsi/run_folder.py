@@ -153,7 +153,7 @@ class RunFolder:
         """Complete run.json: end time, exit status, status words, the files written."""
         if not self.begun:
             return
-        status = {0: "finished", 1: "finished", 2: "bad input", 3: "numerical failure",
+        status = {0: "finished", 1: "checks failed", 2: "bad input", 3: "numerical failure",
                   130: "interrupted", 143: "terminated"}.get(exit_status, "failed")
         files = [n for n in visible_files(self.path) if n not in self.foreign]
         self.record.update(finished=now(), exit_status=exit_status, status=status, files=files,
