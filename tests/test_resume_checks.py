@@ -3,8 +3,6 @@
 import json
 import os
 import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -21,11 +19,9 @@ TINY = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.25", "design
         "optimizer.max_iter=10"]
 
 
-def cli(*args, cwd):
-    command = [sys.executable, "-m", "tofsi.cli", "optimize", OPT, "--output", "out"]
-    for o in TINY:
-        command += ["--set", o]
-    return subprocess.run(command + list(args), capture_output=True, text=True, cwd=cwd)
+def optimize(cli, *args, cwd):
+    sets = [a for o in TINY for a in ("--set", o)]
+    return cli("optimize", OPT, "--output", "out", *sets, *args, cwd=cwd)
 
 
 @pytest.fixture(scope="module")
@@ -47,30 +43,30 @@ def copy_of(interrupted, tmp_path):
     return tmp_path / "out"
 
 
-def test_resume_with_a_changed_volume_bound_is_refused_naming_the_key(interrupted, tmp_path):
+def test_resume_with_a_changed_volume_bound_is_refused_naming_the_key(cli, interrupted, tmp_path):
     """The reproduction: --resume --set design.volume_fraction=0.3 replayed under 0.2 and went on
     under 0.3 (exit 0). Now: exit 2, one line naming the key and both values; nothing changes."""
     out = copy_of(interrupted, tmp_path)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    run = cli("--resume", "--set", "design.volume_fraction=0.3", cwd=tmp_path)
+    run = optimize(cli, "--resume", "--set", "design.volume_fraction=0.3", cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr
     assert "design.volume_fraction: 0.2 -> 0.3" in lines[0]
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
-def test_every_differing_key_is_named(interrupted, tmp_path):
+def test_every_differing_key_is_named(cli, interrupted, tmp_path):
     copy_of(interrupted, tmp_path)
-    run = cli("--resume", "--set", "design.eta=0.4", "--set", "fluid.viscosity=2", cwd=tmp_path)
+    run = optimize(cli, "--resume", "--set", "design.eta=0.4", "--set", "fluid.viscosity=2", cwd=tmp_path)
     assert run.returncode == 2 and "design.eta" in run.stderr and "fluid.viscosity" in run.stderr
 
 
-def test_keys_that_cannot_change_the_replayed_history_may_differ(interrupted, tmp_path):
+def test_keys_that_cannot_change_the_replayed_history_may_differ(cli, interrupted, tmp_path):
     """max_iter may grow: the resumed history holds the checkpoint's 6 iterations bit for bit."""
     out = copy_of(interrupted, tmp_path)
     replayed = json.loads((out / "history.json").read_text())
-    run = cli("--resume", "--set", "optimizer.max_iter=12", "--set", "optimizer.output_every=4",
-              "--json", cwd=tmp_path)
+    run = optimize(cli, "--resume", "--set", "optimizer.max_iter=12", "--set", "optimizer.output_every=4",
+                   "--json", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     history = json.loads((out / "history.json").read_text())
     def without_time(rows):
@@ -81,14 +77,14 @@ def test_keys_that_cannot_change_the_replayed_history_may_differ(interrupted, tm
     assert record["exit_status"] == 0 and record["stop_reason"] == "max_iter"
 
 
-def test_max_iter_below_the_checkpoint_is_refused(interrupted, tmp_path):
+def test_max_iter_below_the_checkpoint_is_refused(cli, interrupted, tmp_path):
     copy_of(interrupted, tmp_path)
-    run = cli("--resume", "--set", "optimizer.max_iter=3", cwd=tmp_path)
+    run = optimize(cli, "--resume", "--set", "optimizer.max_iter=3", cwd=tmp_path)
     assert run.returncode == 2 and "optimizer.max_iter" in run.stderr and ">= 6" in run.stderr
 
 
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "empty", "no record"])
-def test_an_unreadable_checkpoint_exits_2_in_one_line(damage, interrupted, tmp_path):
+def test_an_unreadable_checkpoint_exits_2_in_one_line(cli, damage, interrupted, tmp_path):
     out = copy_of(interrupted, tmp_path)
     path = out / "checkpoint.npz"
     data = path.read_bytes()
@@ -106,15 +102,16 @@ def test_an_unreadable_checkpoint_exits_2_in_one_line(damage, interrupted, tmp_p
         arrays["meta"] = np.array(json.dumps(meta))
         with open(path, "wb") as fh:
             np.savez(fh, **arrays)
-    run = cli("--resume", cwd=tmp_path)
+    run = optimize(cli, "--resume", cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1 and "--resume" in lines[0], run.stderr
     assert "Traceback" not in run.stderr
 
 
-def test_a_checkpoint_of_another_mesh_is_refused(interrupted, tmp_path):
+def test_a_checkpoint_of_another_mesh_is_refused(cli, interrupted, tmp_path):
     out = copy_of(interrupted, tmp_path)
-    run = cli("--resume", "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.05", cwd=tmp_path)
+    run = optimize(cli, "--resume", "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.05",
+                   cwd=tmp_path)
     assert run.returncode == 2 and "mesh.h_min" in run.stderr and "mesh.h_max" in run.stderr
     # the same scene, but the recorded mesh is not this one (a checkpoint copied from elsewhere)
     meta, data = read_checkpoint(out / "checkpoint.npz")
@@ -127,6 +124,6 @@ def test_a_checkpoint_of_another_mesh_is_refused(interrupted, tmp_path):
         check_checkpoint(out / "checkpoint.npz", problem)
 
 
-def test_resume_without_a_checkpoint_exits_2(tmp_path):
-    run = cli("--resume", cwd=tmp_path)
+def test_resume_without_a_checkpoint_exits_2(cli, tmp_path):
+    run = optimize(cli, "--resume", cwd=tmp_path)
     assert run.returncode == 2 and "no checkpoint" in run.stderr and not (tmp_path / "out").exists()

@@ -4,7 +4,6 @@ import errno
 import json
 import os
 import subprocess
-import sys
 import tomllib
 
 import numpy as np
@@ -27,11 +26,6 @@ TINY_OPT = ["--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1", "--set", "desi
             "--set", "design.stage_iterations=2"]
 
 
-def tofsi_cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "tofsi.cli", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd)
-
-
 def snapshot(folder):
     return {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in folder.iterdir()}
 
@@ -39,10 +33,10 @@ def snapshot(folder):
 # ---- item 1: the output folder is checked before any computation ------------------------------
 @pytest.mark.parametrize("where", ["existing file", "under a file", "/dev/null", "/proc/tofsi_out",
                                    "/sys/tofsi_out"])
-def test_an_unwritable_output_exits_2_before_solving(where, tmp_path):
+def test_an_unwritable_output_exits_2_before_solving(cli, where, tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
     output = {"existing file": "notes.txt", "under a file": "notes.txt/out"}.get(where, where)
-    run = tofsi_cli("solve", OPT, "--output", output, *TINY_OPT, cwd=tmp_path)
+    run = cli("solve", OPT, "--output", output, *TINY_OPT, cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr      # no "solving ..." line: no solve
     assert "--output" in lines[0] and "Traceback" not in run.stderr
@@ -74,8 +68,8 @@ def test_the_probe_leaves_nothing_behind(tmp_path):
 
 
 # ---- item 2: runs never mix ---------------------------------------------------------------------
-def test_a_fresh_optimize_refuses_a_folder_of_another_run_and_overwrite_replaces_it(tmp_path):
-    first = tofsi_cli("optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=6",
+def test_a_fresh_optimize_refuses_a_folder_of_another_run_and_overwrite_replaces_it(cli, tmp_path):
+    first = cli("optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=6",
                       "--set", "optimizer.output_every=5", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     out = tmp_path / "out"
@@ -83,13 +77,13 @@ def test_a_fresh_optimize_refuses_a_folder_of_another_run_and_overwrite_replaces
     assert (out / "design_0005.vtu").is_file()
     before = snapshot(out)
 
-    refused = tofsi_cli("optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
+    refused = cli("optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
                         cwd=tmp_path)
     lines = refused.stderr.strip().splitlines()
     assert refused.returncode == 2 and len(lines) == 1 and "--overwrite" in lines[0], refused.stderr
     assert snapshot(out) == before                                  # untouched, bit for bit
 
-    again = tofsi_cli("optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
+    again = cli("optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
                       "--set", "optimizer.output_every=5", "--overwrite", cwd=tmp_path)
     assert again.returncode == 0, again.stderr
     names = set(os.listdir(out))
@@ -101,11 +95,11 @@ def test_a_fresh_optimize_refuses_a_folder_of_another_run_and_overwrite_replaces
     assert "my_notes.txt" not in record["files"] and "design_0003.vtu" not in names
 
 
-def test_a_failed_move_never_sits_beside_an_earlier_success(tmp_path):
-    ok = tofsi_cli("move", FOIL, "--output", "out", *SPRING_45, "--set", "mover.spring.increments=2",
+def test_a_failed_move_never_sits_beside_an_earlier_success(cli, tmp_path):
+    ok = cli("move", FOIL, "--output", "out", *SPRING_45, "--set", "mover.spring.increments=2",
                    cwd=tmp_path)
     assert ok.returncode == 0 and (tmp_path / "out" / "move.json").is_file(), ok.stderr
-    failed = tofsi_cli("move", FOIL, "--output", "out", *SPRING_45, "--set", "mover.spring.increments=1",
+    failed = cli("move", FOIL, "--output", "out", *SPRING_45, "--set", "mover.spring.increments=1",
                        "--overwrite", cwd=tmp_path)
     assert failed.returncode == 3, failed.stderr
     names = set(os.listdir(tmp_path / "out"))
@@ -132,8 +126,8 @@ def test_examples_replace_their_own_run_but_not_another(tmp_path):
 
 
 # ---- item 4: provenance -------------------------------------------------------------------------
-def test_run_json_holds_the_effective_scene_and_the_run(tmp_path):
-    run = tofsi_cli("optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
+def test_run_json_holds_the_effective_scene_and_the_run(cli, tmp_path):
+    run = cli("optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
                     "--set", "design.volume_fraction=0.3", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     record = json.loads((tmp_path / "out" / "run.json").read_text())
@@ -153,8 +147,8 @@ def test_run_json_holds_the_effective_scene_and_the_run(tmp_path):
     assert result["stop_reason"] == "max_iter" and result["iterations"] == 3
 
 
-def test_move_and_solve_json_carry_the_settings_that_define_the_result(tmp_path):
-    run = tofsi_cli("move", FOIL, "--output", "m", *COARSE_FOIL, "--set", "deformation.mode=rotation",
+def test_move_and_solve_json_carry_the_settings_that_define_the_result(cli, tmp_path):
+    run = cli("move", FOIL, "--output", "m", *COARSE_FOIL, "--set", "deformation.mode=rotation",
                     "--set", "deformation.rotation_deg=12.5", "--set", "mover.name=linear", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     move = json.loads((tmp_path / "m" / "move.json").read_text())["settings"]
@@ -162,7 +156,7 @@ def test_move_and_solve_json_carry_the_settings_that_define_the_result(tmp_path)
     assert move["mover"]["name"] == "linear" and "poisson_ratio" in move["mover"]["params"]
     assert move["mesh"]["h_min"] == 0.05
 
-    run = tofsi_cli("solve", OPT, "--output", "s", *TINY_OPT, "--set", "fluid.viscosity=2", cwd=tmp_path)
+    run = cli("solve", OPT, "--output", "s", *TINY_OPT, "--set", "fluid.viscosity=2", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     solve = json.loads((tmp_path / "s" / "solve.json").read_text())["settings"]
     assert solve["fluid"]["viscosity"] == 2.0 and solve["effects"]["fluid"] == "navier-stokes"
