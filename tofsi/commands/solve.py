@@ -59,9 +59,9 @@ def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None
 
 
 def design_densities(scene, args):
-    """``(model, rho, about)``: the scene's design -- uniform, ``design.initial`` or ``--design``
-    -- through the filter and projection of continuation stage ``--stage``, as ``optimize``
-    maps it; scenes without a design region use their fixed densities."""
+    """``(model, rho, about, problem)``: the scene's design -- uniform, ``design.initial`` or
+    ``--design`` -- through the filter and projection of continuation stage ``--stage``, as
+    ``optimize`` maps it; scenes without a design region use their fixed densities (no problem)."""
     stage_arg = str(getattr(args, "stage", "0"))
     if not scene.has_design:
         if scene.design.initial:
@@ -70,7 +70,7 @@ def design_densities(scene, args):
         if stage_arg != "0":
             raise InputError("--stage", stage_arg, "the scene has no design region (geometry.design)")
         model = CoupledModel(scene)
-        return model, model.densities(), {}
+        return model, model.densities(), {}, None
     d = scene.design
     n_stages = max(len(d.beta), len(d.penalty), len(d.brinkman_q), 1)
     stage = n_stages - 1 if stage_arg == "last" else (int(stage_arg) if stage_arg.isdigit() else -1)
@@ -81,13 +81,12 @@ def design_densities(scene, args):
     problem.set_stage(beta=params["beta"], penalty=params["penalty"], q=params["q"])
     gamma = problem.initial_design()
     about = {"design": d.initial or "uniform", "stage": stage, "beta": params["beta"],
-             "penalty": params["penalty"], "brinkman_q": params["q"], "problem": problem}
-    return problem.model, problem.densities(gamma), about
+             "penalty": params["penalty"], "brinkman_q": params["q"]}
+    return problem.model, problem.densities(gamma), about, problem
 
 
 def run(scene, args, ctx) -> dict:
-    model, rho, about = design_densities(scene, args)
-    problem = about.pop("problem", None)
+    model, rho, about, problem = design_densities(scene, args)
     fields = ", ".join(name for name, on in (("flow", model.flow), ("structure", model.structure),
                                              ("mesh motion", model.motion)) if on is not None)
     ctx.say(f"{scene.name}: {model.mesh.n_elements} quads; solving {fields}"
