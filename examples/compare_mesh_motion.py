@@ -13,10 +13,14 @@ then evaluate both final designs with two-way coupling and compare their
 compliance and how many design elements differ. About 15 minutes on two cores:
 
     python examples/compare_mesh_motion.py [--output results/compare_mesh_motion]
+
+``TOFSI_EXAMPLE_SMALL=1`` runs the same steps on a coarse mesh for a few
+iterations (the test suite does this).
 """
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +30,14 @@ from tofsi.optimize import Optimizer, non_discreteness
 from tofsi.plotting import plot_design
 
 SCENE = Path(__file__).parent / "scenes" / "beam_in_channel_optimization_fsi.toml"
+SMALL = os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0"
+BASE = (["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.2", "structure.youngs_modulus=1e5"]
+        if SMALL else [])                            # small: stiff enough for a gray design
+ITERATIONS = (4, 2) if SMALL else (120, 40)      # one-way start, each continuation
 
 
 def optimize(name, output, overrides):
-    scene = tofsi.load_scene(SCENE, overrides)
+    scene = tofsi.load_scene(SCENE, BASE + overrides)
     problem = tofsi.Problem(scene)
 
     def line(it):
@@ -42,17 +50,18 @@ def optimize(name, output, overrides):
 
 
 def main(output: Path) -> dict:
-    one_way = ["effects.coupling=one-way", "design.beta=[1.0, 2.0, 4.0, 8.0, 16.0]", "optimizer.max_iter=120"]
+    one_way = ["effects.coupling=one-way", "design.beta=[1.0, 2.0, 4.0, 8.0, 16.0]",
+               f"optimizer.max_iter={ITERATIONS[0]}"] + (["design.stage_iterations=1"] if SMALL else [])
     print("1. one-way optimization (the common start)")
     start, _ = optimize("one_way", output, one_way)
     np.save(output / "start.npy", start)
-    follow = [f"design.initial={output / 'start.npy'}", "optimizer.max_iter=40"]
+    follow = [f"design.initial={output / 'start.npy'}", f"optimizer.max_iter={ITERATIONS[1]}"]
     print("2. continued with two-way coupling (mesh motion on)")
     two, r_two = optimize("two_way", output, follow)
     print("3. continued one-way (mesh motion off: the control)")
     ctrl, r_ctrl = optimize("control", output, follow + ["effects.coupling=one-way"])
 
-    judge = tofsi.Problem(tofsi.load_scene(SCENE))          # two-way physics decides
+    judge = tofsi.Problem(tofsi.load_scene(SCENE, BASE))    # two-way physics decides
     rows = {}
     for name, gamma in (("two_way", two), ("control", ctrl)):
         state = judge.solve(gamma)

@@ -337,7 +337,7 @@ class Mover(ABC):
         report.wall_time_s = time.perf_counter() - t0
         diagnostic = {"report": report.as_dict(),
                       "quality": quality_record(problem, x.reshape(-1, 2), np.nan)}
-        log.error("%s mover failed: %s", report.mover, message)
+        log.info("%s mover failed: %s", report.mover, message)   # the caller reports the error
         raise NumericalError(f"{report.mover} mover: {message}", diagnostic, state=x.reshape(-1, 2))
 
     @staticmethod

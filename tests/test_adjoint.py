@@ -174,7 +174,7 @@ def test_check_gradients_command_passes_and_fails_with_status_1(tmp_path, monkey
     from tofsi.cli import main
     from conftest import scene_path
     args = ["check-gradients", str(scene_path("beam_in_channel_optimization")), "--set", "mesh.h_min=0.1",
-            "--set", "mesh.h_max=0.1", "--output", str(tmp_path), "--json", "-q"]
+            "--set", "mesh.h_max=0.1", "--output", str(tmp_path), "--json", "-q", "--overwrite"]
     assert main(args) == 0
     import json
     out = json.loads(capsys.readouterr().out)

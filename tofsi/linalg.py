@@ -185,6 +185,7 @@ class AMGSolver:
         residuals: list[float] = []
         x = self._ml.solve(b, tol=self.tol, accel=self.accel, maxiter=self.max_iter, residuals=residuals)
         bnorm = np.linalg.norm(b)
+        log.info("AMG-%s: %d iterations, residual %.2e", self.accel.upper(), len(residuals) - 1, residuals[-1])
         if not np.all(np.isfinite(x)) or (bnorm > 0 and residuals[-1] > 10 * self.tol * bnorm):
             raise NumericalError(f"AMG-{self.accel.upper()} did not converge",
                                  {"residual_history": residuals[-20:], "size": self.shape[0]})
@@ -233,6 +234,7 @@ class RecyclingSolver:
         self.krylov_iterations = 0
 
     def refresh(self, A) -> None:
+        log.info("new factorization of %d unknowns", A.shape[0])
         self.solver = self.factorize(A)
         self.stale = False
         self.factorizations += 1
@@ -256,7 +258,9 @@ class RecyclingSolver:
         self.krylov_iterations += count[0]
         self.stale = count[0] > self.refresh_after
         x = apply(y) if x0 is None else x0 + apply(y)
-        ok = info == 0 and np.all(np.isfinite(x)) and np.linalg.norm(b - A @ x) <= 1.01 * goal
+        residual = np.linalg.norm(b - A @ x)
+        log.info("GMRES: %d iterations, residual %.2e relative to |b|", count[0], residual / np.linalg.norm(b))
+        ok = info == 0 and np.all(np.isfinite(x)) and residual <= 1.01 * goal
         return x, ok
 
     def solve(self, A, b: np.ndarray, guess: np.ndarray | None = None,

@@ -34,6 +34,7 @@ from tofsi.blocks import State
 from tofsi.coupled import continuation
 from tofsi.errors import InputError
 from tofsi.output import atomic_write, write_csv, write_json
+from tofsi.resume import check_resume, identity, read_checkpoint
 
 log = logging.getLogger(__name__)
 ALGORITHMS = {"MMA": nlopt.LD_MMA, "CCSAQ": nlopt.LD_CCSAQ}
@@ -58,6 +59,14 @@ class Iteration:
 
 
 
+def stop_reason(result: int) -> str:
+    """Why NLopt ended a stage: ``max_iter`` (the evaluation budget) or NLopt's own reason."""
+    if result == nlopt.MAXEVAL_REACHED:
+        return "max_iter"
+    names = {v: k.lower() for k, v in vars(nlopt).items() if k.isupper() and k.endswith(("REACHED", "LIMITED"))}
+    return f"nlopt {names.get(result, result)}"
+
+
 def non_discreteness(rho: np.ndarray) -> float:
     """Measure of non-discreteness ``4 sum rho (1 - rho) / n`` in percent (0: black and white)."""
     return float(400.0 * np.mean(rho * (1.0 - rho)))
@@ -80,6 +89,7 @@ class Optimizer:
         self._replay: list[dict] = []        # stored evaluations of this stage, in order
         self._stage_log: list[dict] = []     # evaluations of the running stage (checkpointed)
         self._last = None                    # (gamma, entry) of the last evaluation
+        self.stop_reason = "max_iter"        # why the last stage ended (see stop_reason())
         self._t0 = time.perf_counter()
 
     @property
@@ -141,7 +151,8 @@ class Optimizer:
         fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
         meta = {"scene": self.scene.name, "stage": stage, "n_stage_evaluations": len(self._stage_log),
                 "scale": self.scale, "history": [asdict(h) for h in self.history],
-                "stage_start": self._stage_start.tolist()}
+                "stage_start": self._stage_start.tolist(),
+                "identity": identity(self.scene, self.problem.model.mesh, self.problem.n_design)}
 
         def write(tmp):
             with open(tmp, "wb") as fh:
@@ -149,13 +160,8 @@ class Optimizer:
         atomic_write(self.checkpoint_path, write)
 
     def _load_checkpoint(self):
-        if not self.checkpoint_path.is_file():
-            raise InputError("--resume", str(self.checkpoint_path), "no checkpoint to resume from")
-        with np.load(self.checkpoint_path) as npz:          # fresh, aligned copies: vectorized
-            data = {k: np.array(npz[k], copy=True) for k in npz.files}   # kernels round by alignment
-        meta = json.loads(str(data["meta"]))
-        if meta["scene"] != self.scene.name:
-            raise InputError("--resume", meta["scene"], f"the checkpoint is of another scene, not {self.scene.name}")
+        meta, data = read_checkpoint(self.checkpoint_path)     # same scene and mesh, or InputError
+        check_resume(meta, data, self.problem, self.checkpoint_path)
         replay = []
         for k in range(meta["n_stage_evaluations"]):
             f, volume = data[f"e{k}_f"]
@@ -231,9 +237,12 @@ class Optimizer:
         opt.add_inequality_mconstraint(constraint, [1e-8])
         opt.set_maxeval(max_evaluations)
         try:
-            return np.asarray(opt.optimize(np.clip(gamma, 0.0, 1.0)))
+            gamma = np.asarray(opt.optimize(np.clip(gamma, 0.0, 1.0)))
+            self.stop_reason = stop_reason(opt.last_optimize_result())
+            return gamma
         except nlopt.ForcedStop:
             log.info("stage %d converged after %d evaluations", stage, len(self._stage_log))
+            self.stop_reason = "converged"
             return self._last[0].copy()
 
     def _write_history(self) -> None:
@@ -252,7 +261,9 @@ class Optimizer:
                    "constraint": float(p.constraints(gamma)[0][0]),
                    "non_discreteness_percent": non_discreteness(rho),
                    "wall_time_s": time.perf_counter() - self._t0,
-                   "evaluations_computed": p.evaluations, **p.model.figures(state)}
+                   "evaluations_computed": p.evaluations, "stop_reason": self.stop_reason,
+                   "stage": self.history[-1].stage if self.history else 0,     # of these figures
+                   **p.model.figures(state)}
         self._write_history()
         write_json(self.output / "result.json", figures)
         atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))

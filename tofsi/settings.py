@@ -120,6 +120,11 @@ class DesignSettings:
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
                                   "(path relative to the working directory); empty: uniform")
 
+    def __post_init__(self):
+        if not self.beta:
+            raise InputError("beta", [], "needs at least one value (the projection sharpness of "
+                             "each continuation stage; 0: no projection)")
+
 
 @dataclass(frozen=True)
 class OptimizerSettings:

@@ -278,7 +278,8 @@ class Flow:
             r = self.bc.homogenize(R)
             norm = float(np.linalg.norm(r))
             history.append(norm)
-            log.debug("flow Newton %d (density %g): |F| = %.3e", it, density, norm)
+            log.info("flow Newton %d (density %.4g): |R| = %.3e, target %.3e", it, density, norm,
+                     s.newton_tol * scale)
             if not np.isfinite(norm):
                 raise NumericalError("flow solve: non-finite residual", {"history": history})
             target = s.newton_tol * scale
