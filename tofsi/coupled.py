@@ -38,6 +38,7 @@ from tofsi.mesh import DESIGN, SOLID
 from tofsi.physics.flow import Flow
 from tofsi.physics.motion_block import MeshMotion
 from tofsi.physics.structure import Structure
+from tofsi.threads import configure as configure_linear_algebra
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +66,7 @@ class CoupledModel:
 
     def __init__(self, scene, mesh=None):
         self.scene = scene
+        configure_linear_algebra(scene.solver)             # backend and threads ([solver])
         self.mesh = build_mesh(scene.geometry, scene.mesh) if mesh is None else mesh
         e = scene.effects
         self.flow = None if e.fluid == "none" else Flow(self.mesh, scene.fluid, stokes=e.fluid == "stokes")

@@ -22,7 +22,7 @@ import movers
 from tofsi.config import build, coerce, option
 from tofsi.errors import InputError
 from tofsi.settings import (CoupledSettings, DesignSettings, FluidSettings, OptimizerSettings,
-                            StructureSettings)
+                            SolverSettings, StructureSettings)
 
 Rectangle = tuple[float, float, float, float]
 
@@ -138,6 +138,7 @@ class Scene:
     optimizer: OptimizerSettings
     coupled: CoupledSettings
     source: str = ""
+    solver: SolverSettings = dataclasses.field(default_factory=SolverSettings)
 
     @property
     def has_design(self) -> bool:
@@ -146,7 +147,8 @@ class Scene:
 
 _TABLES = {"geometry": Geometry, "mesh": MeshSettings, "deformation": Deformation,
            "fluid": FluidSettings, "structure": StructureSettings, "design": DesignSettings,
-           "optimizer": OptimizerSettings, "coupled": CoupledSettings}
+           "optimizer": OptimizerSettings, "coupled": CoupledSettings,
+           "solver": SolverSettings}
 _TOP = {"name", "description", "effects", "mover", *_TABLES}
 
 

@@ -111,6 +111,8 @@ def get_backend(name: str | None = None):
     name = resolve(name)
     if name not in _instances:
         _instances[name] = importlib.import_module(MODULES[name]).Backend()
+        if "threads" in _default:
+            _instances[name].set_threads(_default["threads"])
     return _instances[name]
 
 
@@ -126,6 +128,13 @@ def set_default(name: str) -> str:
 
 def default() -> str:
     return _default["name"]
+
+
+def set_threads(n: int) -> None:
+    """Threads of every backend that is loaded and has its own thread pool (PARDISO's MKL)."""
+    _default["threads"] = int(n)
+    for backend in _instances.values():
+        backend.set_threads(n)
 
 
 def analysis_for(A: sp.csr_matrix, backend, perm: np.ndarray | None):

@@ -97,6 +97,9 @@ class Backend:
     def analyse(self, pattern, perm):
         return Analysis(self, pattern, perm)
 
+    def set_threads(self, n: int) -> None:
+        set_threads(n)
+
 
 def _int(v: int):
     return ctypes.byref(ctypes.c_int32(v))

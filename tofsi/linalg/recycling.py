@@ -74,7 +74,7 @@ class RecyclingSolver:
         if not np.any(b):
             return np.zeros_like(b)
         if self.solver is not None and not self.stale and getattr(self.solver, "recycle", True):
-            x, ok = self._krylov(A.T.tocsr(), b, self.solver.solve_transpose)
+            x, ok = self._krylov(A.T, b, self.solver.solve_transpose)
             if ok:
                 return x
         self.refresh(A)

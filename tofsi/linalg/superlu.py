@@ -37,6 +37,9 @@ class Backend:
     def analyse(self, pattern, perm):
         return Analysis(self, pattern, perm)
 
+    def set_threads(self, n: int) -> None:
+        """SuperLU is sequential."""
+
 
 class Analysis:
     """Permuted CSC pattern of ``A[p][:, p]`` and the gather map from ``A``'s CSR data."""
