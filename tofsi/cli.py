@@ -11,12 +11,15 @@ import argparse
 import importlib
 import logging
 import sys
+import tempfile
 from pathlib import Path
 
 from tofsi.commands.context import RunContext
 from tofsi.errors import InputError, NumericalError
+from tofsi.memory import check as check_memory
 from tofsi.output import default_output, to_json, write_json
 from tofsi.scene import load_scene
+from tofsi.threads import configure as configure_linear_algebra, mpi_rank
 
 COMMANDS = {
     "mesh": "build the scene's mesh; print sizes; write the mesh and a picture",
@@ -50,6 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="print one JSON object with the run's figures on stdout")
         p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
         p.add_argument("-q", "--quiet", action="store_true", help="no progress or summary text")
+        p.add_argument("--max-memory", type=float, default=None, metavar="GB",
+                       help="refuse a run estimated to need more memory (default: solver.max_memory_gb, "
+                            "else the memory available now)")
         if name == "study":
             p.add_argument("--sweep", action="append", default=[], metavar="KEY=RANGE",
                            help="KEY=START:STOP:STEP, KEY=START:STOP:*FACTOR or KEY=V1,V2,... "
@@ -70,6 +76,11 @@ def main(argv=None) -> int:
     ctx = None
     try:
         scene = load_scene(args.scene, args.set)
+        if args.command != "mesh":
+            check_memory(scene, args.command, args.max_memory)     # before any factorization
+            configure_linear_algebra(scene.solver)
+        if mpi_rank() > 0:                     # mpiexec: rank 0 writes and prints
+            args.output, args.json, args.quiet = Path(tempfile.mkdtemp()), False, True
         ctx = RunContext(output=args.output or default_output(scene.name), json=args.json,
                          quiet=args.quiet)
         command = importlib.import_module(f"tofsi.commands.{args.command.replace('-', '_')}")

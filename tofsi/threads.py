@@ -59,3 +59,11 @@ def configure(settings) -> None:
     backends.set_default(settings.linear_solver)
     set_blas_threads(settings.blas_threads)
     backends.set_threads(solver_threads(settings.threads))
+
+
+def mpi_rank() -> int:
+    """This process's rank under ``mpiexec`` (0 when not started by an MPI launcher)."""
+    for name in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK", "MV2_COMM_WORLD_RANK"):
+        if os.environ.get(name, "").isdigit():
+            return int(os.environ[name])
+    return 0
