@@ -11,12 +11,18 @@ pattern (counters); optional backends are skipped with the reason.
 from __future__ import annotations
 
 import gc
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
 import tofsi
+from tofsi.coupled import CoupledModel
 from tofsi.errors import InputError
 from tofsi.linalg import DirectSolver, RecyclingSolver, backends, nested_dissection
 from tofsi.physics.flow import Flow
@@ -190,3 +196,58 @@ def test_flow_solve_is_the_same_on_every_backend():
     ref = results["superlu"]
     for name, w in results.items():
         assert np.linalg.norm(w - ref) <= 1e-9 * np.linalg.norm(ref), name
+
+
+def test_petsc_on_two_ranks_equals_the_serial_solve(tmp_path):
+    """``mpiexec -n 2``: MUMPS factorizes across two processes, each owning half the rows;
+    the coupled state equals the serial SuperLU one to 1e-10."""
+    backend_or_skip("petsc")
+    mpiexec = shutil.which("mpiexec")
+    if mpiexec is None:
+        pytest.skip("mpiexec not found")
+    root = Path(__file__).resolve().parents[1]
+    sets = ["mesh.h_min=0.1", "mesh.h_max=0.1"]
+    out = tmp_path / "mpi.npz"
+    env = {**os.environ, "PYTHONPATH": str(root), "OMPI_MCA_rmaps_base_oversubscribe": "1"}
+    subprocess.run([mpiexec, "--allow-run-as-root", "-n", "2", sys.executable, "tests/mpi_solve.py",
+                    str(out), *sets], cwd=root, env=env, check=True, timeout=300)
+    got = np.load(out)
+    assert int(got["ranks"]) == 2 and got["rows"].min() > 0
+    scene = tofsi.load_scene("examples/scenes/beam_in_channel_optimization.toml", sets)
+    model = CoupledModel(scene)
+    state = model.solve(model.densities())
+    for name in ("w", "u"):
+        ref = getattr(state, name)
+        assert np.linalg.norm(got[name] - ref) <= 1e-10 * np.linalg.norm(ref), name
+
+
+def test_resume_is_bitwise_exact_with_pardiso(tmp_path):
+    """PARDISO's analysis depends on the pattern only and MKL runs in its reproducible mode
+    (MKL_CBWR=AUTO,STRICT), so an interrupted and resumed optimization repeats the full one
+    bit for bit, as with SuperLU (tests/test_optimize.py)."""
+    backend_or_skip("pardiso")
+    from tofsi.optimize import Optimizer
+    sets = ["mesh.h_min=0.05", "mesh.h_max=0.05", "design.filter_radius=0.15", "optimizer.max_iter=8",
+            "design.stage_iterations=4", "solver.linear_solver=pardiso", "solver.threads=2"]
+
+    def run(output, on_iteration=None, resume=False):
+        scene = tofsi.load_scene("examples/scenes/beam_in_channel_optimization.toml", sets)
+        opt = Optimizer(tofsi.Problem(scene), output, on_iteration=on_iteration)
+        opt.run(resume=resume)
+        return opt
+
+    try:
+        full = run(tmp_path / "full")
+
+        def interrupt(it):
+            if it.iteration == 5:
+                raise KeyboardInterrupt
+        with pytest.raises(KeyboardInterrupt):
+            run(tmp_path / "cut", on_iteration=interrupt)
+        resumed = run(tmp_path / "cut", resume=True)
+    finally:
+        backends.set_default("superlu")
+    key = lambda h: (h.iteration, h.objective, h.volume, h.constraint, h.change)
+    assert [key(h) for h in resumed.history] == [key(h) for h in full.history]
+    np.testing.assert_array_equal(np.load(tmp_path / "cut" / "design.npy"),
+                                  np.load(tmp_path / "full" / "design.npy"))

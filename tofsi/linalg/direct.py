@@ -10,12 +10,18 @@ solves each, plus a residual check.
 
 from __future__ import annotations
 
+import logging
+import time
+
 import numpy as np
 import scipy.sparse as sp
 
 from tofsi.errors import NumericalError
 from tofsi.linalg.backends import analysis_for, canonical_csr, get_backend
 from tofsi.linalg.ordering import nested_dissection
+
+log = logging.getLogger(__name__)
+PROGRESS_SIZE = 100_000          # systems at least this large report their factorization
 
 
 class DirectSolver:
@@ -39,7 +45,13 @@ class DirectSolver:
             perm = nested_dissection(coords)
         self.A, self.perm = A, perm
         self.backend = get_backend(backend if A.dtype == np.float64 else "superlu")
+        t0 = time.perf_counter()
+        if A.shape[0] >= PROGRESS_SIZE:
+            log.info("factorizing %d unknowns (%d non-zeros) with %s ...", A.shape[0], A.nnz, self.backend.name)
         self.factorization = analysis_for(A, self.backend, perm).factorize(A)
+        if A.shape[0] >= PROGRESS_SIZE:
+            log.info("... factorized in %.1f s, %.2f GB of factors", time.perf_counter() - t0,
+                     self.factorization.memory_bytes / 1024**3)
         self.memory_bytes = self.factorization.memory_bytes
         self.shape = A.shape
         self.dtype = A.dtype
