@@ -7,7 +7,8 @@ two threads under load), because NumPy's BLAS calls here are many small
 products whose threads spin against each other. The sparse direct solver
 (PARDISO) does gain from threads, so it gets one per core. Both are
 overridable: ``[solver] blas_threads`` / ``threads`` in a scene, or the
-environment variables ``TOFSI_BLAS_THREADS`` / ``TOFSI_THREADS``, which win.
+environment variables ``TOFSI_BLAS_THREADS`` / ``TOFSI_THREADS``, which win
+(as ``TOFSI_LINEAR_SOLVER`` does for ``[solver] linear_solver``).
 """
 
 from __future__ import annotations
@@ -54,9 +55,13 @@ def set_blas_threads(requested: int = 1) -> int | None:
 
 
 def configure(settings) -> None:
-    """Apply a scene's ``[solver]`` table: the default backend and the thread counts."""
+    """Apply a scene's ``[solver]`` table: the default backend and the thread counts.
+
+    ``TOFSI_LINEAR_SOLVER`` in the environment overrides the scene's backend
+    (e.g. to run a benchmark or the test suite on another backend).
+    """
     from tofsi.linalg import backends
-    backends.set_default(settings.linear_solver)
+    backends.set_default(os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or settings.linear_solver)
     set_blas_threads(settings.blas_threads)
     backends.set_threads(solver_threads(settings.threads))
 
