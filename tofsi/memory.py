@@ -25,8 +25,8 @@ from tofsi.errors import InputError
 
 GB = 1024.0 ** 3
 BASE_BYTES = 0.15 * GB          # interpreter, NumPy/SciPy, the scene (measured 0.10 GB at import)
-BYTES_PER_ELEMENT = 18e3        # fitted to tofsi solve at 4005, 16200, 36315 elements (SuperLU)
-BYTES_PER_FACTOR_ENTRY = 22.0   # 12 stored + the factorization's working space, same fit
+BYTES_PER_ELEMENT = 8.6e3       # fitted to tofsi solve at 4005, 16200, 36315 elements (SuperLU)
+BYTES_PER_FACTOR_ENTRY = 21.0   # 12 stored + the factorization's working space, same fit
 FILL = {"flow": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured 12.6-13.9 / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
 
