@@ -45,6 +45,8 @@ def set_blas_threads(requested: int = 1) -> int | None:
     n = _override("TOFSI_BLAS_THREADS", requested)
     if n <= 0:
         return None
+    import numpy.linalg  # noqa: F401  - load NumPy's and SciPy's OpenBLAS, so both are limited
+    import scipy.linalg  # noqa: F401
     try:
         from threadpoolctl import ThreadpoolController
     except ImportError:                       # pragma: no cover - a dependency
