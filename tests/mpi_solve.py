@@ -17,8 +17,7 @@ scene = tofsi.load_scene("examples/scenes/beam_in_channel_optimization.toml",
                          ["solver.linear_solver=petsc", *overrides])
 model = CoupledModel(scene)
 state = model.solve(model.densities())
-factor = model.flow.solver.solver.factorization
-rows = factor.slot.rend - factor.slot.rstart
+rows = backends.get_backend("petsc").local_rows          # of the last factorization
 counts = PETSc.COMM_WORLD.tompi4py().gather(rows, root=0)
 if PETSc.COMM_WORLD.getRank() == 0:
     np.savez(out, w=state.w, u=state.u, ranks=PETSc.COMM_WORLD.getSize(), rows=np.array(counts),

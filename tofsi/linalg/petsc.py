@@ -57,6 +57,7 @@ class Backend:
     def __init__(self):
         self.analyses = 0
         self.factorizations = 0
+        self.local_rows = 0               # rows this rank owned in the last factorization
 
     def analyse(self, pattern, perm):
         return Analysis(self, pattern, perm)
@@ -132,6 +133,7 @@ class Analysis:
         slot = self._slot()
         slot.factorize(np.ascontiguousarray(A.data, dtype=np.float64))
         self.backend.factorizations += 1
+        self.backend.local_rows = slot.rend - slot.rstart
         factor = Factorization(slot)
         slot.owner = weakref.ref(factor)
         return factor
