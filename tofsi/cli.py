@@ -19,6 +19,7 @@ import json
 import logging
 import signal
 import sys
+import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -26,10 +27,12 @@ import tofsi
 from tofsi.commands.context import RunContext
 from tofsi.commands.hints import hint
 from tofsi.errors import InputError, NumericalError
+from tofsi.memory import check as check_memory
 from tofsi.output import default_output, to_json, write_json
 from tofsi.provenance import run_record
 from tofsi.run_folder import RunFolder
 from tofsi.scene import load_scene
+from tofsi.threads import configure as configure_linear_algebra, mpi_rank
 
 COMMANDS = {
     "mesh": "build the scene's mesh; print sizes; write the mesh and a picture",
@@ -75,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("-v", "--verbose", action="count", default=0,
                        help="more log output (-v: solver iterations and residuals, -vv: debug)")
         p.add_argument("-q", "--quiet", action="store_true", help="no progress or summary text")
+        p.add_argument("--max-memory", type=float, default=None, metavar="GB",
+                       help="refuse a run estimated to need more memory (default: solver.max_memory_gb, "
+                            "else the memory available now)")
         if name == "study":
             p.add_argument("--sweep", action="append", default=[], metavar="KEY=RANGE",
                            help="KEY=START:STOP:STEP, KEY=START:STOP:*FACTOR or KEY=V1,V2,... "
@@ -154,6 +160,11 @@ def _run(args, argv) -> int:
     try:
         overrides = scene_overrides(args)
         scene = load_scene(args.scene, overrides)
+        if args.command != "mesh":
+            check_memory(scene, args.command, args.max_memory)     # before any factorization
+            configure_linear_algebra(scene.solver)
+        if mpi_rank() > 0:                     # mpiexec: rank 0 writes and prints
+            args.output, args.json, args.quiet = Path(tempfile.mkdtemp()), False, True
         folder = RunFolder(args.output or default_output(scene.name), program=f"tofsi {args.command}",
                            overwrite=args.overwrite, resume=getattr(args, "resume", False)).check()
         ctx = RunContext(output=folder.path, json=args.json, quiet=args.quiet, folder=folder,

@@ -32,6 +32,7 @@ from tofsi.physics.flow import Flow
 from tofsi.physics.fluid_load import FluidForce
 from tofsi.physics.mesh_motion import MeshMotion
 from tofsi.physics.structure import Structure
+from tofsi.threads import configure as configure_linear_algebra
 
 __all__ = ["CoupledModel", "State", "continuation"]
 
@@ -55,6 +56,7 @@ class CoupledModel:
 
     def __init__(self, scene, mesh=None):
         self.scene = scene
+        configure_linear_algebra(scene.solver)             # backend and threads ([solver])
         self.mesh = build_mesh(scene.geometry, scene.mesh) if mesh is None else mesh
         e = scene.effects
         self.flow = None if e.fluid == "none" else Flow(self.mesh, scene.fluid, stokes=e.fluid == "stokes")

@@ -24,7 +24,7 @@ import movers
 from tofsi.config import build, coerce, option
 from tofsi.errors import InputError
 from tofsi.settings import (CoupledSettings, DesignSettings, FluidSettings, OptimizerSettings,
-                            StructureSettings)
+                            SolverSettings, StructureSettings)
 
 THIN = 1e-6                 # solids thinner than this fraction of the channel get a warning
 MIN_ELEMENTS_ACROSS = 4     # mesh.h_max is at most the channel's smaller side over this
@@ -157,6 +157,7 @@ class Scene:
     optimizer: OptimizerSettings
     coupled: CoupledSettings
     source: str = ""
+    solver: SolverSettings = dataclasses.field(default_factory=SolverSettings)
 
     @property
     def has_design(self) -> bool:
@@ -165,7 +166,8 @@ class Scene:
 
 _TABLES = {"geometry": Geometry, "mesh": MeshSettings, "deformation": Deformation,
            "fluid": FluidSettings, "structure": StructureSettings, "design": DesignSettings,
-           "optimizer": OptimizerSettings, "coupled": CoupledSettings}
+           "optimizer": OptimizerSettings, "coupled": CoupledSettings,
+           "solver": SolverSettings}
 _TOP = {"name", "description", "effects", "mover", *_TABLES}
 
 

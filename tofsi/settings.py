@@ -135,3 +135,21 @@ class OptimizerSettings:
     tol_change: float = option(1e-3, gt=0, doc="stop when max |gamma change| falls below")
     tol_objective: float = option(1e-6, gt=0, doc="stop on relative objective change below")
     output_every: int = option(10, ge=1, doc="write pictures and VTU every N iterations")
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Linear algebra: the sparse direct backend, threads and the memory limit (table ``[solver]``)."""
+
+    linear_solver: str = option("superlu", choices=("auto", "superlu", "pardiso", "petsc"),
+                                doc="sparse direct backend: superlu (always present, bitwise "
+                                    "reproducible), pardiso (MKL, pip extra 'fast'), petsc "
+                                    "(MUMPS through petsc4py, distributed under mpiexec), "
+                                    "auto (the fastest installed)")
+    threads: int = option(0, ge=0, le=4096, doc="threads of the sparse direct backend "
+                                                "(0: one per core)")
+    blas_threads: int = option(1, ge=0, le=4096,
+                               doc="OpenBLAS threads of NumPy/SciPy (1: fastest measured here and "
+                                   "robust on a shared machine; 0: leave as the environment says)")
+    max_memory_gb: float = option(0.0, ge=0, doc="refuse a solve whose estimated memory exceeds "
+                                                 "this [GB] (0: the machine's available memory)")
