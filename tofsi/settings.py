@@ -116,6 +116,11 @@ class DesignSettings:
                                            doc="convexity q of the Brinkman interpolation, one value "
                                                "per stage (last value kept); `tofsi solve` uses the "
                                                "first (alias: fluid.brinkman_q)")
+    coupling: tuple[str, ...] = option((), choices=("one-way", "two-way"),
+                                       doc="coupling of each stage (last value kept) for a two-way "
+                                           "scene: one-way stages first find the topology at one-way "
+                                           "cost, two-way stages design against the deforming flow; "
+                                           "empty: effects.coupling throughout")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
                                   "(path relative to the working directory); empty: uniform")
@@ -124,6 +129,11 @@ class DesignSettings:
         if not self.beta:
             raise InputError("beta", [], "needs at least one value (the projection sharpness of "
                              "each continuation stage; 0: no projection)")
+
+    @property
+    def n_stages(self) -> int:
+        """Continuation stages: the longest schedule (the others keep their last value)."""
+        return max(len(self.beta), len(self.penalty), len(self.brinkman_q), len(self.coupling), 1)
 
 
 @dataclass(frozen=True)
