@@ -165,6 +165,7 @@ class FieldBlock(ABC):
     symbol: str = ""                   # the residual's letter in reports (F, S, D); default the name
     report_name: str = ""
     has_residual: bool = True          # False: an explicit (path-dependent) map
+    slow_couplings: tuple[str, ...] = ()   # couplings a quasi-Newton solve may keep fixed
 
     @property
     @abstractmethod

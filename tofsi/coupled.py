@@ -81,7 +81,8 @@ class CoupledModel:
         if self.motion is not None:
             blocks.append(MotionField(self.motion))
         c = scene.coupled
-        settings = CouplingSettings(c.method, c.tol, c.max_iter, c.relaxation, relax="u")
+        settings = CouplingSettings(c.method, c.tol, c.max_iter, c.relaxation, relax="u",
+                                    quasi_newton=c.quasi_newton)
         self.system = BlockSystem(blocks, settings)
         self.one_way_system = self.system                  # a two-way problem's one-way stages
         if self.two_way:

@@ -80,6 +80,9 @@ class CoupledSettings:
                                                "per block (monolithic)")
     max_iter: int = option(60, ge=1, le=10_000, doc="coupling iterations")
     relaxation: float = option(0.5, gt=0, le=1, doc="first Aitken relaxation factor")
+    quasi_newton: bool = option(True, doc="monolithic: keep the shape derivatives (F_x, S_x) of the "
+                                          "first iterate for the rest of the Newton solve (the "
+                                          "adjoint gets the exact ones of the converged state)")
 
 
 def objective_names() -> tuple[str, ...]:
