@@ -94,7 +94,7 @@ class BlockSystem:
                 if explicit:
                     raise InputError("coupled.method", "monolithic",
                                      f"field {explicit[0]!r} is an explicit (path-dependent) map "
-                                     "without a residual form; use 'partitioned'")
+                                     "without a residual form; use 'partitioned' or 'auto'")
         sizes = [b.size for b in self.blocks]
         self.offsets = dict(zip(self.names, np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)))
         self.size = int(sum(sizes))
@@ -131,6 +131,13 @@ class BlockSystem:
     @property
     def cycles(self) -> list[tuple[str, ...]]:
         return [c for c in self.components if len(c) > 1]
+
+    def method_for(self, comp) -> str:
+        """How a cycle is solved: the settings' method; ``auto`` is monolithic when every block
+        of the cycle has a residual form, partitioned otherwise."""
+        if self.settings.method != "auto":
+            return self.settings.method
+        return "monolithic" if all(self.by_name[n].has_residual for n in comp) else "partitioned"
 
     def relaxed_field(self, comp: tuple[str, ...]) -> str:
         """The field a partitioned sweep over ``comp`` relaxes (and measures convergence on)."""
@@ -183,7 +190,7 @@ class BlockSystem:
         for comp in self.components:
             if len(comp) == 1:
                 fields[comp[0]] = self._solve_block(comp[0], fields, state, progress)
-            elif self.settings.method == "monolithic":
+            elif self.method_for(comp) == "monolithic":
                 self._monolithic(comp, fields, state)
             else:
                 self._partitioned(comp, fields, state, progress)

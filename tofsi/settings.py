@@ -73,9 +73,10 @@ class StructureSettings:
 class CoupledSettings:
     """The two-way coupled solve (table ``[coupled]``)."""
 
-    method: str = option("partitioned", choices=("partitioned", "monolithic"),
-                         doc="fixed point with Aitken relaxation, or Newton on the 3x3 block Jacobian "
-                             "(needs a mover with a residual form)")
+    method: str = option("auto", choices=("auto", "partitioned", "monolithic"),
+                         doc="fixed point with Aitken relaxation, or Newton on the block Jacobian "
+                             "(needs a mover with a residual form); auto: monolithic when the mover "
+                             "has a residual form, partitioned otherwise")
     tol: float = option(1e-9, gt=0, lt=1, doc="relative change of u (partitioned) or residual "
                                                "per block (monolithic)")
     max_iter: int = option(60, ge=1, le=10_000, doc="coupling iterations")
