@@ -109,7 +109,8 @@ class FluidForce:
         self.free = (~flow.bc.is_fixed[flow.dofs[:, :18]]).astype(float)       # (E, 18)
         self._operators = None            # (x bytes, B) of the stress-divergence form
         self._last = None                 # (key, element values) of the last evaluation
-        self._shape_pattern = None        # CSR pattern of df/dx
+        self._fluid_pattern = None        # CSR patterns of df/dw and df/dx (made on first use)
+        self._shape_pattern = None
 
     # ---- weights -----------------------------------------------------------------------
     @staticmethod
@@ -189,10 +190,9 @@ class FluidForce:
 
     def fluid_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
         """``df/dw`` (2n x size of w)."""
-        dw = self.elements(w, x, rho, params, partials=True)[1]
-        rows = np.broadcast_to(self.dofs[:, :, None], dw.shape)
-        cols = np.broadcast_to(self.flow.dofs[:, None, :], dw.shape)
-        return sp.csr_matrix((dw.ravel(), (rows.ravel(), cols.ravel())), shape=(self.size, self.flow.size))
+        if self._fluid_pattern is None:
+            self._fluid_pattern = SparsePattern(self.dofs, self.flow.dofs, (self.size, self.flow.size))
+        return self._fluid_pattern.assemble(self.elements(w, x, rho, params, partials=True)[1])
 
     def fluid_partial_transpose(self, lam, w, x, rho, params=None) -> np.ndarray:
         """``(df/dw)^T lam`` (size of w) without assembling ``df/dw``."""
