@@ -8,7 +8,7 @@ kernels as the values.
 * ``compliance``: ``f(w, x, rho) . u`` [J/m] -- the work of the fluid load;
 * ``dissipation``: ``1/2 int (mu grad v : grad v + alpha(rho) |v|^2)`` [W/m]
   (Borrvall & Petersson 2003's total potential power without the body force);
-* ``pressure-drop``: mean inlet minus mean outlet pressure [Pa];
+* ``pressure-drop``: mean inflow minus mean outflow pressure over the openings [Pa];
 * ``volume``: solid fraction of the design region (by reference area), for
   the constraint ``volume / volume_fraction - 1 <= 0``.
 """
@@ -96,40 +96,21 @@ class Dissipation:
 
 
 class PressureDrop:
+    """Mean pressure over the inflow segments minus the mean over the outflow and open
+    segments [Pa] (see :mod:`tofsi.physics.flow_boundary`), on any sides. Linear in the
+    corner pressures; the channel boundary never moves, so there is no shape partial."""
+
     name = "pressure-drop"
 
-    @staticmethod
-    def _weights(flow, P) -> np.ndarray:
-        """``dp_drop/dp`` on the corner pressures: trapezoid weights / side length."""
-        out = np.zeros(P.shape[0], dtype=P.dtype)
-        for side, sign in ((flow.inlet, 1.0), (flow.outlet, -1.0)):
-            nodes = flow.mesh.side_nodes(side)
-            s = P[nodes, 1]
-            ds = np.diff(s)
-            wts = np.zeros(len(nodes), dtype=P.dtype)
-            wts[:-1] += 0.5 * ds
-            wts[1:] += 0.5 * ds
-            out[nodes] += sign * wts / (s[-1] - s[0])
-        return out
-
     def value(self, model, state) -> float:
-        return float(model.flow.figures(state.w, state.displacement, state.rho)["pressure_drop"])
+        flow = model.flow
+        return float(flow.boundary.pressure_drop_weights() @ state.w[flow.n_velocity:])
 
     def partials(self, model, state) -> dict:
         flow = model.flow
-        P = flow.mesh.points if state.x is None else flow.mesh.points + state.displacement
         g = np.zeros(flow.size)
-        g[flow.n_velocity:] = self._weights(flow, P)
-        out = {"w": g}
-        if model.two_way:
-            p = state.w[flow.n_velocity:]
-            gx = np.zeros_like(P)
-            for k in np.union1d(flow.mesh.side_nodes(flow.inlet), flow.mesh.side_nodes(flow.outlet)):
-                Pc = P.astype(complex)
-                Pc[k, 1] += 1j * COMPLEX_STEP
-                gx[k, 1] = (self._weights(flow, Pc) @ p).imag / COMPLEX_STEP
-            out["x"] = gx.ravel()
-        return out
+        g[flow.n_velocity:] = flow.boundary.pressure_drop_weights()
+        return {"w": g}
 
 
 class VolumeFraction:
