@@ -8,6 +8,8 @@ kernels as the values.
 * ``compliance``: ``f(w, x, rho) . u`` [J/m] -- the work of the fluid load;
 * ``dissipation``: ``1/2 int (mu grad v : grad v + alpha(rho) |v|^2)`` [W/m]
   (Borrvall & Petersson 2003's total potential power without the body force);
+* ``dissipation-strain``: ``1/2 int (2 mu eps(v) : eps(v) + alpha(rho) |v|^2)`` [W/m]
+  (topFlow's objective, the strain-rate form);
 * ``pressure-drop``: mean inflow minus mean outflow pressure over the openings [Pa];
 * ``volume``: solid fraction of the design region (by reference area), for
   the constraint ``volume / volume_fraction - 1 <= 0``.
@@ -95,6 +97,51 @@ class Dissipation:
         return out
 
 
+class StrainDissipation:
+    """``1/2 int (2 mu eps(v) : eps(v) + alpha(rho) |v|^2)`` [W/m], ``eps = (grad v + grad v^T)/2``:
+    half the power dissipated by the strain-rate (symmetric) viscous form -- topFlow's
+    objective ``phi = 1/2 int mu d_j v_i (d_j v_i + d_i v_j) + alpha v_i v_i``
+    (Alexandersen 2023). It equals ``dissipation`` plus ``1/2 int mu grad v : grad v^T``,
+    a boundary term for divergence-free flow."""
+
+    name = "dissipation-strain"
+
+    @staticmethod
+    def element_values(flow, Xe, w, rho) -> np.ndarray:
+        ve, _ = flow.split(w)
+        grad, det = physical_gradients(Xe, 2, POINTS)
+        L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)               # (E, G, 2, 2)
+        v = np.matmul(N2, ve)
+        strain = np.sum(L * (L + np.swapaxes(L, -1, -2)), axis=(-1, -2))   # 2 eps : eps
+        return 0.5 * np.sum(det * WEIGHTS * (flow.settings.viscosity * strain
+                                             + flow.alpha(rho)[:, None] * np.sum(v * v, axis=-1)), axis=1)
+
+    def value(self, model, state) -> float:
+        flow = model.flow
+        return float(self.element_values(flow, flow.corners(state.displacement), state.w, state.rho).sum())
+
+    def partials(self, model, state) -> dict:
+        """``w``: ``int mu (grad v + grad v^T) : grad N_a + alpha v N_a`` per velocity dof."""
+        flow, X, rho = model.flow, state.displacement, state.rho
+        Xe = flow.corners(X)
+        ve, _ = flow.split(state.w)
+        grad, det = physical_gradients(Xe, 2, POINTS)                       # (E, G, 9, 2)
+        wd = det * WEIGHTS
+        L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)
+        v = np.matmul(N2, ve)
+        S = flow.settings.viscosity * (L + np.swapaxes(L, -1, -2))          # (E, G, 2, 2)
+        gv = np.einsum("eg,egij,egaj->eai", wd, S, grad)
+        gv += flow.alpha(rho)[:, None, None] * np.einsum("eg,ga,egi->eai", wd, N2, v)
+        ge = np.zeros((Xe.shape[0], 22))
+        ge[:, :18] = gv.reshape(-1, 18)
+        out = {"w": assemble_vector(flow.dofs, ge, flow.size),
+               "rho": 0.5 * flow.brinkman.derivative(rho) * np.sum(wd * np.sum(v * v, axis=-1), axis=1)}
+        if model.two_way:
+            out["x"] = _corner_partial(lambda Xc: self.element_values(flow, Xc, state.w, rho), Xe,
+                                       model.mesh.quads, model.mesh.n_nodes)
+        return out
+
+
 class PressureDrop:
     """Mean pressure over the inflow segments minus the mean over the outflow and open
     segments [Pa] (see :mod:`tofsi.physics.flow_boundary`), on any sides. Linear in the
@@ -130,4 +177,5 @@ class VolumeFraction:
         return {"rho": self.weights.copy()}
 
 
-OBJECTIVES = {"compliance": Compliance, "dissipation": Dissipation, "pressure-drop": PressureDrop}
+OBJECTIVES = {"compliance": Compliance, "dissipation": Dissipation, "pressure-drop": PressureDrop,
+              "dissipation-strain": StrainDissipation}

@@ -36,7 +36,8 @@ class Problem:
         self.scene = scene
         self.model = CoupledModel(scene, mesh)
         d = scene.design
-        needs = {"compliance": "structure", "dissipation": "fluid", "pressure-drop": "fluid"}[d.objective]
+        needs = {"compliance": "structure", "dissipation": "fluid", "dissipation-strain": "fluid",
+                 "pressure-drop": "fluid"}[d.objective]
         if getattr(scene.effects, needs) == "none":
             raise InputError("design.objective", d.objective, f"needs effects.{needs}")
         self.map = DesignMap(self.model.mesh, d.filter_radius, d.beta[0], d.eta)

@@ -118,8 +118,10 @@ class CoupledSettings:
 class DesignSettings:
     """Density design: objective, volume, filter and projection (table ``[design]``)."""
 
-    objective: str = option("compliance", choices=("compliance", "dissipation", "pressure-drop"),
-                            doc="quantity to minimize")
+    objective: str = option("compliance", choices=("compliance", "dissipation", "dissipation-strain",
+                                                   "pressure-drop"),
+                            doc="quantity to minimize (dissipation: 1/2 int mu grad v : grad v + alpha "
+                                "|v|^2; dissipation-strain: 1/2 int 2 mu eps : eps + alpha |v|^2)")
     volume_fraction: float = option(0.25, gt=0, lt=1,
                                     doc="upper bound of the constrained phase's fraction of the "
                                         "design region")

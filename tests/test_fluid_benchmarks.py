@@ -1,0 +1,89 @@
+"""Fluid topology benchmarks: topFlow's objective, a bend with its outlet on the bottom side,
+and the published double pipes (topology on coarse meshes here; the published numbers in
+the slow tests).
+
+Published values: Borrvall & Petersson (2003) J = 25.67 (length 1) and 27.64 (length 1.5);
+Alexandersen's topFlow (2023) phi = 22.0956 and 23.5732 (102 x 102 Q1/Q1 elements).
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+import tofsi
+from adjoint.checks import central_difference, relative_error, taylor_test
+from tofsi.cli import main
+from tofsi.objectives import StrainDissipation
+from tofsi.optimize import Optimizer
+
+from conftest import load, scene_path
+
+COARSE_BEAM = ["mesh.h_min=0.1", "mesh.h_max=0.1", "fluid.alpha_max=1e3", "fluid.newton_tol=1e-13",
+               "design.filter_radius=0.15", "structure.youngs_modulus=2e4", "coupled.tol=1e-12",
+               "mover.yeoh.newton_tol=1e-13", "design.objective=dissipation-strain"]
+
+
+def test_strain_dissipation_is_half_the_dissipated_power_of_the_flow_figures():
+    """topFlow's phi = 1/2 int (2 mu eps:eps + alpha |v|^2) against Flow.figures' dissipated
+    power (an independent implementation), on a Navier-Stokes state of a grey design."""
+    P = tofsi.Problem(load("beam_in_channel_optimization", *COARSE_BEAM, "effects.fluid=navier-stokes"))
+    gamma = np.random.default_rng(3).uniform(0.05, 0.95, P.n_design)
+    state = P.solve(gamma)
+    phi = StrainDissipation().value(P.model, state)
+    assert phi == pytest.approx(0.5 * P.model.flow.figures(state.w, None, state.rho)["dissipated_power"],
+                                rel=1e-12)
+
+
+@pytest.mark.parametrize("coupling", [[], ["effects.coupling=two-way", "mover.name=yeoh",
+                                           "structure.load_exponent=3"]], ids=["one-way", "two-way"])
+def test_strain_dissipation_total_derivative(coupling):
+    """Taylor test (rate 2) and central differences of topFlow's objective through the adjoint,
+    with Navier-Stokes flow, and two-way on the moving mesh (its shape partial)."""
+    P = tofsi.Problem(load("beam_in_channel_optimization", *COARSE_BEAM, "effects.fluid=navier-stokes",
+                           *coupling))
+    rng = np.random.default_rng(1)
+    gamma, d = rng.uniform(0.05, 0.95, P.n_design), rng.normal(size=P.n_design)
+    f0, df = P.evaluate(gamma)
+    fun = lambda g: P.evaluate(g)[0]
+    t = taylor_test(fun, gamma, df, d, eps0=1e-2, steps=4, f0=f0)
+    assert t.min_rate > 1.9, t
+    assert relative_error(central_difference(fun, gamma, d, 1e-4), df @ d) < 1e-5
+
+
+def bend(*overrides):
+    return load("pipe_bend", "mesh.h_min=0.05", "mesh.h_max=0.05", *overrides)
+
+
+def test_pipe_bend_with_a_bottom_outlet_passes_check_gradients(tmp_path, capsys):
+    """The shipped bend (open outlet on the bottom) through ``tofsi check-gradients`` on a coarse
+    mesh, with its dissipation and with the pressure drop between the left and bottom openings."""
+    for objective in ("dissipation", "pressure-drop"):
+        args = ["check-gradients", str(scene_path("pipe_bend")), "--set", "mesh.h_min=0.05", "--set",
+                "mesh.h_max=0.05", "--set", f"design.objective={objective}", "--output", str(tmp_path),
+                "--json", "-q"]
+        assert main(args) == 0
+        out = json.loads(capsys.readouterr().out)
+        assert out["passed"] and f"objective {objective}" in {r["check"] for r in out["checks"]}
+
+
+def fluid_at(opt, x, y, radius):
+    """Mean fluid fraction of the elements within ``radius`` (square) of (x, y)."""
+    c = opt.problem.model.mesh.centroids
+    near = (np.abs(c[:, 0] - x) < radius) & (np.abs(c[:, 1] - y) < radius)
+    return float((1 - opt.final_state.rho)[near].mean())
+
+
+def test_pipe_bend_optimizes_to_a_channel_from_the_inlet_to_the_bottom_outlet(tmp_path):
+    """``tofsi optimize`` on a coarse mesh: the objective falls by more than 30 %, the fluid
+    runs diagonally from the left inlet (y ~ 0.8) to the bottom outlet (x ~ 0.8), and the far
+    corners stay solid."""
+    scene = bend("optimizer.max_iter=80", "design.stage_iterations=40")
+    opt = Optimizer(tofsi.Problem(scene), tmp_path / "bend")
+    result = opt.run()
+    assert result["objective"] < 0.7 * opt.history[0].objective
+    assert result["constraint"] <= 1e-3
+    for x, y in ((0.1, 0.75), (0.4, 0.45), (0.75, 0.1)):          # along the diagonal
+        assert fluid_at(opt, x, y, 0.06) > 0.7, (x, y)
+    for x, y in ((0.85, 0.85), (0.1, 0.1)):                        # the far corners
+        assert fluid_at(opt, x, y, 0.1) < 0.1, (x, y)
