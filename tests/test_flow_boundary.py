@@ -56,9 +56,9 @@ def outflow_through(flow, w, side, start, end):
     nodes = mesh.side_nodes9(side)
     s = side_coordinate(side, mesh.points9()[nodes])
     vn = -w[:flow.n_velocity].reshape(-1, 2)[nodes] @ np.array(INWARD[side])
+    vn = np.where((s > start - 1e-12) & (s < end + 1e-12), vn, 0.0)      # the wall around is still
     a, m, b = vn[:-2:2], vn[1:-1:2], vn[2::2]
-    inside = (s[:-2:2] >= start - 1e-12) & (s[2::2] <= end + 1e-12)
-    return float(np.sum(((s[2::2] - s[:-2:2]) * (a + 4 * m + b) / 6)[inside]))
+    return float(np.sum((s[2::2] - s[:-2:2]) * (a + 4 * m + b) / 6))
 
 
 def test_a_pipe_bend_with_an_outlet_on_the_bottom_conserves_mass():
@@ -92,6 +92,16 @@ def test_the_default_channel_is_the_older_inflow_left_and_open_right():
     np.testing.assert_array_equal(seg.bc.fixed, table.bc.fixed)
     np.testing.assert_array_equal(seg.values, table.values)
     assert not seg.open_outlet and seg.bc.is_fixed[2 * mesh.n_nodes9]      # closed: pressure pinned
+
+
+def test_flux_of_two_segments_on_one_side_is_the_sum_of_their_parabolas():
+    """Volume flow of a parabolic segment is 2/3 U w, and segments sharing a side add up (the
+    segments end on grid lines, so the Q2 trace is the parabola itself)."""
+    mesh = box(1.0, 1.0, 12, 12)                  # 1/6, 1/3, 2/3, 5/6 are grid lines
+    b = Flow(mesh, fluid(inlets=[[1 / 6, 1 / 3, 1.0], [2 / 3, 5 / 6, 2.0]],
+                         outlets=[[1 / 6, 1 / 3, 1.5], [2 / 3, 5 / 6, 1.5]]), stokes=True).boundary
+    assert b.flux("inflow") == pytest.approx(2 / 3 * (1.0 + 2.0) / 6, rel=1e-13)
+    assert b.flux("outflow") == pytest.approx(2 / 3 * (1.5 + 1.5) / 6, rel=1e-13)
 
 
 def test_segment_integral_is_exact_for_linear_pressure():
@@ -134,3 +144,28 @@ def test_a_segment_with_from_not_below_to_is_rejected_when_read():
     with pytest.raises(InputError) as err:
         fluid(bottom={"inflow": [[0.5, 0.5, 1.0]]})
     assert err.value.key == "fluid.bottom.inflow[0]"
+
+
+def documented_openings():
+    """The ```toml examples of docs/scenes.md's section on openings."""
+    import re
+    import tomllib
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[1] / "docs" / "scenes.md").read_text()
+    section = text[text.index("## Where the flow enters and leaves"):]
+    return [tomllib.loads(block) for block in re.findall(r"```toml\n(.*?)```", section, re.S)]
+
+
+@pytest.mark.parametrize("example", documented_openings(), ids=lambda e: ",".join(
+    f"{side}:{'+'.join(t)}" for side, t in e["fluid"].items()))
+def test_documented_openings_solve_and_conserve_mass(example):
+    """Each example of docs/scenes.md on the default 2 x 1 channel: Stokes flow is solved and
+    what flows in through the inflow segments leaves through the outflow and open ones."""
+    mesh = box(2.0, 1.0, 40, 20)
+    flow = Flow(mesh, fluid(**example["fluid"]), stokes=True)
+    w, report = flow.solve()
+    assert report.converged
+    q_in = flow.boundary.flux("inflow")
+    q_out = sum(outflow_through(flow, w, o.side, o.start, o.end)
+                for o in flow.boundary.openings if o.kind != "inflow")
+    assert q_out == pytest.approx(q_in, rel=1e-10)

@@ -195,6 +195,7 @@ class FlowBoundary:
             nodes = self.mesh.side_nodes9(o.side)             # corner, mid, corner, ... along the side
             s = side_coordinate(o.side, P9[nodes])
             vn = v[nodes] @ np.array(INWARD[o.side]) * (1.0 if kind == "inflow" else -1.0)
+            vn = np.where((s >= o.start) & (s <= o.end), vn, 0.0)     # this segment's nodes only
             a, mid, b = vn[:-2:2], vn[1:-1:2], vn[2::2]
             total += float(np.sum((s[2::2] - s[:-2:2]) * (a + 4 * mid + b) / 6.0))
         return total
