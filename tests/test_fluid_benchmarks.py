@@ -87,3 +87,46 @@ def test_pipe_bend_optimizes_to_a_channel_from_the_inlet_to_the_bottom_outlet(tm
         assert fluid_at(opt, x, y, 0.06) > 0.7, (x, y)
     for x, y in ((0.85, 0.85), (0.1, 0.1)):                        # the far corners
         assert fluid_at(opt, x, y, 0.1) < 0.1, (x, y)
+
+
+COARSE = 1 / 24                  # 1/6 and the inlets' ends are grid lines
+
+
+def run_scene(name, tmp_path, *overrides, h=COARSE):
+    scene = load(name, f"mesh.h_min={h}", f"mesh.h_max={h}", *overrides)
+    opt = Optimizer(tofsi.Problem(scene), tmp_path / name)
+    return opt, opt.run()
+
+
+def test_borrvall_petersson_length_1_gives_two_straight_pipes(tmp_path):
+    """The published settings (q continued 0.01 -> 0.1) on a 24 x 24 mesh: fluid along y = 1/4
+    and 3/4, solid between, the fluid bound active."""
+    opt, result = run_scene("bp_double_pipe", tmp_path, "design.stage_iterations=100",
+                            "optimizer.max_iter=200", "optimizer.tol_change=1e-3")
+    for y in (0.25, 0.75):
+        assert fluid_at(opt, 0.5, y, 0.04) > 0.9, y
+    assert fluid_at(opt, 0.5, 0.5, 0.1) < 0.05
+    assert abs(result["constraint"]) < 1e-3
+
+
+def test_borrvall_petersson_length_1_5_merges_the_pipes_from_the_uniform_start(tmp_path):
+    """Length 1.5 with the q continuation, from the uniform initial design: the "double wrench"
+    -- one channel along y = 1/2 in the middle, solid where straight pipes would run."""
+    opt, result = run_scene("bp_double_pipe_long", tmp_path, "design.stage_iterations=100",
+                            "optimizer.max_iter=200", "optimizer.tol_change=1e-3")
+    assert fluid_at(opt, 0.75, 0.5, 0.06) > 0.9
+    for y in (0.25, 0.75):
+        assert fluid_at(opt, 0.75, y, 0.06) < 0.05, y
+    assert abs(result["constraint"]) < 1e-3
+
+
+def test_topflow_double_pipe_gives_two_straight_pipes_to_its_open_outlets(tmp_path):
+    """topFlow's setting (Navier-Stokes, open outlets, its objective and q steps) on a 24 x 24
+    mesh with shortened steps: two pipes, solid between them and outside."""
+    opt, result = run_scene("topflow_double_pipe", tmp_path, "design.stage_iterations=25",
+                            "optimizer.max_iter=100")
+    for y in (0.25, 0.75):
+        assert fluid_at(opt, 0.5, y, 0.04) > 0.9, y
+    for y in (0.05, 0.5, 0.95):
+        assert fluid_at(opt, 0.5, y, 0.04) < 0.05, y
+    assert result["constraint"] < 1e-3
