@@ -113,7 +113,7 @@ def picture(case: str, n: int, folder: Path, out: Path) -> None:
     m = p.model.mesh
     v = state.w[:p.model.flow.n_velocity].reshape(-1, 2)[: m.n_nodes]
     plot_design(out / f"{case}_{n}.png", m.points, m.quads, rho, np.linalg.norm(v, axis=1),
-                title=f"{case}, {m.nx} x {m.ny}", width=3.6)
+                title=f"{m.nx} x {m.ny} elements", width=3.6)
 
 
 def table(rows: list[dict]) -> str:
