@@ -1,8 +1,10 @@
-"""Adjoint sensitivities: derivative blocks, the block adjoint solve, gradient checks.
+"""Adjoint sensitivities over field blocks: the block adjoint solve and gradient checks.
 
     from adjoint import Adjoint
-    adj = Adjoint(model, state)          # refuses an unconverged state
-    df_drho = adj.gradient(quantity)     # total derivative with respect to the element densities
+    adj = Adjoint(system, state)           # a BlockSystem and a converged state of it
+    df_drho = adj.gradient(partials)       # partials {field: df/dz, "rho": df/drho}
+
+The package knows blocks (:mod:`tofsi.blocks`), not physics.
 """
 
 from adjoint.solve import Adjoint

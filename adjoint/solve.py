@@ -1,144 +1,120 @@
-"""One block adjoint solve per quantity, and the total derivative with respect to rho.
+"""Adjoint gradients over a block system: one adjoint solve per quantity, any blocks.
 
-With the fields' Jacobian ``J`` in the order (u, x, w) (see ``docs/design.md``)
+For fields ``z_b`` with residuals ``R_b`` (see :mod:`tofsi.blocks`) and a
+quantity ``f(z, rho)`` with partials ``g_b = df/dz_b``, the multipliers solve
 
-    J^T lam = -(df/du, df/dx, df/dw),    df/drho = df/drho|_partial + lam^T dR/drho,
+    (dR_b/dz_b)^T lam_b = -(g_b + sum_{c uses b} (dR_c/dz_b)^T lam_c),
+    df/drho = df/drho|_partial + sum_b (dR_b/drho)^T lam_b.
 
-solved the way the forward problem allows:
+The system's dependency components are visited in reverse order:
 
-* one-way (no mesh motion): ``S_u^T lam_u = -f_u``, then
-  ``F_w^T lam_w = -(f_w + S_w^T lam_u)`` -- two solves with the forward
-  factorizations (the structure's LU; the flow's last Newton LU preconditions
-  GMRES on the converged Jacobian);
-* monolithic (a mover with a residual form): ``J^T lam = -f`` with the
-  forward Newton's factorization preconditioning GMRES;
-* block Gauss-Seidel (any mover, also path-dependent ones, with only a
-  vector-Jacobian product ``x = Phi(u, rho)``): repeat
-  ``lam_w = -F_w^-T (f_w + S_w^T lam_u)``, ``xbar = f_x + S_x^T lam_u + F_x^T lam_w``,
-  ``ubar = Phi_u^T xbar``, ``lam_u = -S_u^-T (f_u + ubar)`` until ``lam_u``
-  settles (with Aitken relaxation), then
-  ``df/drho = f_rho + S_rho^T lam_u + F_rho^T lam_w + Phi_rho^T xbar``.
+* a single block: one transposed solve with its forward factorization
+  (one-way coupling: the structure, then the flow);
+* a cycle that the forward solve closed by monolithic Newton: the
+  transposed block Jacobian ``J^T lam = -g``, preconditioned by the Newton's
+  factorization;
+* any other cycle (also with an explicit, path-dependent map, whose
+  "solve" is the identity and whose partials are its vector-Jacobian
+  product): block Gauss-Seidel sweeps in the reverse of the forward order,
+  the relaxed field's multiplier relaxed with Aitken's factor, until its
+  relative change is below ``tol``.
 
-Boundary conditions are the forward ones made homogeneous, applied by the
-same Dirichlet operators. A quantity that depends on rho alone (the volume)
-needs no solve. The adjoint refuses a state the forward solve did not report
-as converged.
+The adjoint never names a physics: it reads the blocks' linearizations kept
+in the state. It refuses a state the forward solve did not report converged.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from adjoint.blocks import Blocks
 from tofsi.errors import NumericalError
+from tofsi.iteration import aitken
 
 
 class Adjoint:
-    """Adjoint gradients of any number of quantities at one converged coupled state."""
+    """Adjoint gradients of any number of quantities at one converged state of a block system."""
 
-    def __init__(self, model, state, tol: float = 1e-11, max_iter: int = 100):
+    def __init__(self, system, state, tol: float = 1e-11, max_iter: int = 100):
         if not getattr(state, "converged", False):
             raise NumericalError("adjoint refused: the forward state is not converged", {})
-        self.model, self.state = model, state
-        self.blocks = Blocks(model, state)
+        missing = [n for n in system.names if n not in state.linearizations]
+        if missing:
+            raise NumericalError(f"adjoint refused: the state has no linearization of {missing} "
+                                 "(a restored or copied state); solve it again", {})
+        self.system, self.state = system, state
         self.tol, self.max_iter = tol, max_iter
         self.reports: list[dict] = []
 
-    def method(self) -> str:
-        m = self.model
-        if not m.two_way:
+    def method(self, comp=None) -> str:
+        """How the component ``comp`` (default: the last cycle, else the last block) is solved."""
+        comps = self.system.components
+        comp = comp or (self.system.cycles[-1] if self.system.cycles else comps[-1])
+        if len(comp) == 1:
             return "one-way"
-        if m.settings.method == "monolithic" and m.motion.has_residual:
-            return "monolithic"
-        return "block Gauss-Seidel"
+        return "monolithic" if tuple(comp) in self.state.coupled else "block Gauss-Seidel"
 
-    def gradient(self, quantity, partials: dict | None = None) -> np.ndarray:
-        """``d quantity / d rho`` (E,): partials plus the adjoint term."""
-        g = quantity.partials(self.model, self.state) if partials is None else partials
-        total = np.array(g.get("rho", np.zeros(self.model.mesh.n_elements)), dtype=float)
-        if not any(k in g for k in ("u", "x", "w")):
-            return total
-        method = self.method()
-        if method == "one-way":
-            total += self._one_way(g)
-        elif method == "monolithic":
-            total += self._monolithic(g)
-        else:
-            total += self._gauss_seidel(g)
+    def gradient(self, partials: dict) -> np.ndarray:
+        """``d quantity / d rho`` (E,) from the quantity's partials ``{field: df/dz, "rho": df/drho}``."""
+        lins = self.state.linearizations
+        total = np.array(partials.get("rho", np.zeros(len(self.state.rho))), dtype=float)
+        bars = {n: np.zeros(self.system.by_name[n].size) for n in self.system.names}
+        given = False
+        for n in self.system.names:
+            g = partials.get(n)
+            if g is not None:
+                bars[n] = bars[n] + np.asarray(g, dtype=float) * np.ones(bars[n].size)
+                given = given or bool(np.any(g))
+        if not given:
+            return total                                  # depends on rho alone: no solve
+        for comp in reversed(self.system.components):
+            method = self.method(comp)
+            if method == "one-way":
+                lam = {comp[0]: lins[comp[0]].solve_transpose(-bars[comp[0]])}
+            elif method == "monolithic":
+                lam = self._monolithic(comp, bars)
+            else:
+                lam = self._gauss_seidel(comp, bars)
+            self.reports.append({"method": method, "fields": list(comp)})
+            for name in comp:                              # to the fields upstream, and to rho
+                inputs, rho_bar = lins[name].transpose_partials(lam[name])
+                for other, bar in inputs.items():
+                    if other not in comp:
+                        bars[other] = bars[other] + bar
+                if rho_bar is not None:
+                    total += rho_bar
         return total
 
-    # ---- strategies ---------------------------------------------------------------------
-    def _solve_u(self, rhs):
-        st = self.model.structure
-        return st.solver(self.state.rho).solve_transpose(st.bc.homogenize(rhs))
+    def _monolithic(self, comp, bars) -> dict:
+        coupled = self.state.coupled[tuple(comp)]
+        lam = coupled.solve_transpose(-np.concatenate([bars[n] for n in comp]))
+        return self.system.split(lam, comp)
 
-    def _solve_w(self, rhs):
-        fl = self.model.flow
-        return fl.solver.solve_transpose(self.blocks.F_w(), fl.bc.homogenize(rhs))
-
-    def _fluid_part(self, g, lam_u):
-        b = self.blocks
-        rhs = -np.asarray(g.get("w", 0.0)) * np.ones(self.model.flow.size)
-        if lam_u is not None:
-            rhs = rhs - b.S_w().T @ lam_u
-        lam_w = self._solve_w(rhs)
-        return lam_w, b.F_rho().T @ lam_w
-
-    def _one_way(self, g) -> np.ndarray:
-        lam_u, extra = None, 0.0
-        if self.model.structure is not None and "u" in g:
-            lam_u = self._solve_u(-np.asarray(g["u"]))
-            extra = self.blocks.S_rho().T @ lam_u
-        lam_w, from_flow = self._fluid_part(g, lam_u)
-        self.reports.append({"method": "one-way"})
-        return extra + from_flow
-
-    def _monolithic(self, g) -> np.ndarray:
-        m, s, b = self.model, self.state, self.blocks
-        n2 = 2 * m.mesh.n_nodes
-        rhs = np.zeros(2 * n2 + m.flow.size)
-        rhs[:n2] = -m.structure.bc.homogenize(np.asarray(g.get("u", 0.0)) * np.ones(n2))
-        rhs[n2:2 * n2] = -np.asarray(g.get("x", 0.0)) * np.ones(n2)
-        rhs[2 * n2:] = -m.flow.bc.homogenize(np.asarray(g.get("w", 0.0)) * np.ones(m.flow.size))
-        J = self._get_jacobian()
-        lam = m._newton_solver.solve_transpose(J, rhs)
-        lam_u, lam_x, lam_w = m.split(lam)
-        _, from_mesh = m.motion.partials_transpose(s.x, s.u, s.rho, lam_x)
-        self.reports.append({"method": "monolithic"})
-        return b.S_rho().T @ lam_u + from_mesh + b.F_rho().T @ lam_w
-
-    def _get_jacobian(self):
-        if "J" not in self.blocks._cache:
-            m, s = self.model, self.state
-            self.blocks._cache["J"] = m.jacobian(s.u, s.x, s.w, s.rho, Fw=self.blocks.F_w())
-        return self.blocks._cache["J"]
-
-    def _gauss_seidel(self, g) -> np.ndarray:
-        m, s, b = self.model, self.state, self.blocks
-        n2 = 2 * m.mesh.n_nodes
-        g_u = np.asarray(g.get("u", 0.0)) * np.ones(n2)
-        g_x = np.asarray(g.get("x", 0.0)) * np.ones(n2)
-        lam_u = self._solve_u(-g_u)
-        omega, r_prev, history = 1.0, None, []
+    def _gauss_seidel(self, comp, bars) -> dict:
+        lins = self.state.linearizations
+        relax = self.system.relaxed_field(comp)
+        sweep = tuple(reversed(comp))
+        lam = {n: np.zeros(self.system.by_name[n].size) for n in comp}
+        into = {n: {} for n in comp}                       # into[b][c] = (dR_c/dz_b)^T lam_c
+        omega, r_previous, history = 1.0, None, []
         for it in range(self.max_iter):
-            lam_w, _ = self._fluid_part(g, lam_u)
-            xbar = g_x + b.S_x().T @ lam_u + b.F_x().T @ lam_w
-            ubar, rho_mesh = m.motion.vjp(s.motion_result, xbar.reshape(-1, 2), s.rho)
-            new = self._solve_u(-(g_u + ubar))
-            r = new - lam_u
-            change = np.linalg.norm(r) / max(np.linalg.norm(new), 1e-300)
+            change = 0.0
+            for b in sweep:
+                rhs = bars[b] + sum(into[b].values(), np.zeros(bars[b].size))
+                new = lins[b].solve_transpose(-rhs)
+                if b == relax:
+                    r = new - lam[b]
+                    change = float(np.linalg.norm(r) / max(np.linalg.norm(new), 1e-300))
+                    omega = aitken(omega, r, r_previous)
+                    new = new if it == 0 else lam[b] + omega * r
+                    r_previous = r if it > 0 else None
+                lam[b] = new
+                inputs, _ = lins[b].transpose_partials(new)
+                for other, bar in inputs.items():
+                    if other in comp:
+                        into[other][b] = bar
             history.append(change)
-            if change <= self.tol:
-                lam_u = new
-                lam_w, from_flow = self._fluid_part(g, lam_u)
-                xbar = g_x + b.S_x().T @ lam_u + b.F_x().T @ lam_w
-                _, rho_mesh = m.motion.vjp(s.motion_result, xbar.reshape(-1, 2), s.rho)
+            if it > 0 and change <= self.tol:
                 self.reports.append({"method": "block Gauss-Seidel", "history": history})
-                return b.S_rho().T @ lam_u + from_flow + rho_mesh
-            if r_prev is not None:
-                dr = r - r_prev
-                omega = -omega * float(r_prev @ dr) / max(float(dr @ dr), 1e-300)
-            lam_u = lam_u + omega * r
-            r_prev = r
+                return lam
         raise NumericalError(f"adjoint block Gauss-Seidel did not converge in {self.max_iter} sweeps",
                              {"history": history})

@@ -44,7 +44,6 @@ def run_case(h: float, two_way: bool) -> dict:
 
     import tofsi
     from adjoint import Adjoint
-    from adjoint.blocks import Blocks
 
     overrides = [f"mesh.h_min={h}", f"mesh.h_max={h}"] + (TWO_WAY if two_way else [])
     problem = tofsi.Problem(tofsi.load_scene(SCENE, overrides))
@@ -57,20 +56,24 @@ def run_case(h: float, two_way: bool) -> dict:
     t0 = time.perf_counter()
     state = problem.solve(gamma2)
     forward = time.perf_counter() - t0
+    model, X = problem.model, state.mesh_displacement
     t0 = time.perf_counter()
-    Blocks(problem.model, state).all()
+    for block in model.system.blocks:           # every partial block as a sparse matrix
+        lin = state.linearizations[block.name]
+        for other in block.inputs:
+            lin.coupling(other)
+        lin.density()
     blocks = time.perf_counter() - t0
-    model, X = problem.model, state.displacement
     t0 = time.perf_counter()
-    model.flow.jacobian(state.w, X, state.rho)
+    model.flow.jacobian(state.w, X, state.rho, params=state.params)
     if model.structure is not None:
-        model.structure.stiffness(state.rho)
+        model.structure.stiffness(state.rho, state.params)
     assembly = time.perf_counter() - t0
     t0 = time.perf_counter()
     problem.evaluate(gamma2)
     problem.constraints(gamma2)
     adjoint = time.perf_counter() - t0
-    method = Adjoint(model, state).method()
+    method = Adjoint(model.system, state).method()
     return {"elements": model.mesh.n_elements, "design_variables": problem.n_design,
             "dofs": model.flow.size + (2 * model.structure.size if two_way else model.structure.size),
             "cold_s": cold, "forward_s": forward, "adjoint_s": adjoint, "blocks_s": blocks,

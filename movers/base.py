@@ -29,13 +29,37 @@ import numpy as np
 from movers.blend import Blend, node_scale
 from tofsi import quality
 from tofsi.errors import NumericalError
-from tofsi.fem.assembly import element_dofs
+from tofsi.fem.assembly import assemble_vector, element_dofs
+from tofsi.fem.complex_step import derivative
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.linalg import RecyclingSolver, make_solver, nested_dissection, rigid_body_modes
 
 log = logging.getLogger(__name__)
 
+
+def element_apply(Ke: np.ndarray, v: np.ndarray, dofs: np.ndarray, transpose: bool = False) -> np.ndarray:
+    """Global ``K v`` (or ``K^T v``) from element matrices ``(E, a, a)``, without assembling ``K``."""
+    spec = "eba,eb->ea" if transpose else "eab,eb->ea"
+    return assemble_vector(dofs, np.einsum(spec, Ke, v[dofs]), v.size)
+
 Progress = Callable[[int, int, dict], None]
+
+
+def transposed_solve(problem: "MotionProblem", Ke: np.ndarray, rhs: np.ndarray, solver, blend=None):
+    """Adjoint of ``[[W K_ff + S_c, W K_fp], [0, I]]`` (element matrices ``Ke`` of ``K``).
+
+    Returns ``lam`` (zero on fixed dofs) and ``lam_p`` (zero on free dofs):
+    ``A_ff^T lam_f = rhs_f``, ``lam_p = rhs_p - (K^T W lam_f)_p``, with the same
+    Dirichlet operator as the forward solve, homogeneous.
+    """
+    bc, dofs = problem.bc, problem.dofs
+    A = bc.matrix(Ke) if blend is None else blend.matrix(bc, Ke, dofs)
+    lam = solver.solve_transpose(A, bc.homogenize(rhs))
+    lam[bc.fixed] = 0.0
+    lam_w = lam if blend is None else blend.weighted(lam)
+    lam_p = np.zeros_like(rhs)
+    lam_p[bc.fixed] = rhs[bc.fixed] - element_apply(Ke, lam_w, dofs, transpose=True)[bc.fixed]
+    return lam, lam_p
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,7 +185,16 @@ def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
 
 
 class Mover(ABC):
-    """Base class of mesh movers: ``Params`` record, ``move``, and adjoint hooks."""
+    """Base class of mesh movers: ``Params`` record, ``move``, and what the adjoint needs.
+
+    A mover with a residual form (``path_dependent`` False) writes its element
+    kernel, :meth:`element_residual`, and :meth:`move`; this class composes
+    from the kernel the density blend, the fixed rows, the residual and its
+    true Jacobian, the residual's partial derivatives and the
+    implicit-function vector-Jacobian product. A path-dependent mover
+    (increments on the updated mesh) writes :meth:`move`, :meth:`vjp` and
+    :meth:`reference_matrices` instead.
+    """
 
     name: ClassVar[str]
     Params: ClassVar[type]
@@ -174,44 +207,103 @@ class Mover(ABC):
              progress: Progress | None = None) -> MoveResult:
         """Displacement ``(n, 2)`` with the fixed nodes at ``prescribed`` and a report."""
 
-    @abstractmethod
-    def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
-        """Vector-Jacobian product of the map (prescribed, stiffening, blend) -> displacement.
-
-        xbar : (n, 2) adjoint of the displacement
-        returns ``(prescribed_bar (n, 2), stiffening_bar (Em,), blend_bar (n,))``;
-        without a blend ``prescribed_bar`` is zero on free nodes and ``blend_bar`` zero.
-        """
-
     @property
     def path_dependent(self) -> bool:
         """True when the map has no residual form (increments on the updated mesh)."""
         return False
 
-    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
-        """``D(x)`` (2n,) and its Jacobian ``D_x`` for movers with a residual form.
-
-        Free rows ``W R(x) + S_c (x - target)``, fixed rows ``x - target``; ``D_x``
-        keeps the free rows' fixed columns (true Jacobian, see
-        :meth:`~tofsi.fem.dirichlet.DirichletOperator.row_matrix`). ``blend``: the
-        :class:`~movers.blend.Blend` of ``problem`` (from a move, or built here).
-        """
+    # ---- the residual form, composed from the element kernel ------------------------
+    def element_residual(self, problem: MotionProblem, x: np.ndarray, factors, tangent: bool = True):
+        """Element residuals ``(Em, 8)`` and tangents ``(Em, 8, 8)`` (None without ``tangent``)
+        of the unblended mover at displacement ``x`` (2n,), stiffening ``factors`` (Em,)
+        (complex-safe in ``factors``); raises NumericalError where it is undefined."""
         raise NotImplementedError(f"the {self.name} mover has no residual form "
                                   "(increments on the updated mesh); use its vector-Jacobian product")
 
-    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None):
-        """``lam^T dD/d(target, stiffening, blend)``: ``(2n,)``, ``(Em,)``, ``(n,)`` (no solve)."""
-        raise NotImplementedError(f"the {self.name} mover has no residual form")
-
-    @abstractmethod
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
         """Unstiffened element matrices ``(Em, 8, 8)`` of the reference mesh (blend scale)."""
+        return self.element_residual(problem, np.zeros(2 * problem.n_nodes),
+                                     np.ones(len(problem.quads)))[1]
 
-    def _blend(self, problem: MotionProblem):
+    def blend(self, problem: MotionProblem) -> Blend | None:
+        """The :class:`~movers.blend.Blend` of a density-blended problem (None otherwise)."""
         if problem.blend is None:
             return None
         c = node_scale(self.reference_matrices(problem), problem.dofs, problem.n_nodes)
         return Blend.build(np.asarray(problem.blend, float), c, problem.bc.is_fixed)
+
+    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
+        """``D(x)`` (2n,) and its true Jacobian ``D_x`` (CSR).
+
+        Free rows ``W R(x) + S_c (x - target)`` (``W = 1``, ``S_c = 0`` without a
+        blend), fixed rows ``x - target``; ``D_x`` keeps the free rows' fixed
+        columns (the fixed values follow another field). ``blend``: the
+        problem's :class:`~movers.blend.Blend` if already built.
+        """
+        blend = self.blend(problem) if blend is None else blend
+        x = np.asarray(x, float).reshape(-1)
+        target = np.asarray(target, float).reshape(-1)
+        Re, Ke = self.element_residual(problem, x, problem.stiffening)
+        bc, dofs = problem.bc, problem.dofs
+        r = assemble_vector(dofs, Re, x.size)
+        if blend is not None:
+            r = blend.residual(r, x, target)
+        r = bc.homogenize(r)
+        r[bc.fixed] = (x - target)[bc.fixed]
+        K = bc.row_matrix(Ke).tocsr() if blend is None else blend.row_matrix(bc, Ke, dofs)
+        return r, K
+
+    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None):
+        """``lam^T dD/d(target, stiffening, blend)``: ``(2n,)``, ``(Em,)``, ``(n,)`` (no solve).
+
+        ``-(lam_p + S_c lam_f)`` on the target; ``(W lam)_e . dR_e/df_e`` on the
+        factors (complex step in the factor); ``lam_i . (c_i (x_i - target_i) - R_i)``
+        on the blend.
+        """
+        blend = self.blend(problem) if blend is None else blend
+        x = np.asarray(x, float).reshape(-1)
+        target = np.asarray(target, float).reshape(-1)
+        lam = np.asarray(lam, float).reshape(-1)
+        bc, dofs = problem.bc, problem.dofs
+        lam_f = bc.homogenize(lam)
+        t_bar = np.zeros_like(lam)
+        t_bar[bc.fixed] = -lam[bc.fixed]
+        lam_w = lam_f if blend is None else blend.weighted(lam_f)
+        dR_df = derivative(lambda f: self.element_residual(problem, x, f, tangent=False)[0],
+                           problem.stiffening)     # R_e depends on f_e alone: one step for all
+        f_bar = np.einsum("ea,ea->e", lam_w[dofs], dR_df)
+        s_bar = np.zeros(problem.n_nodes)
+        if blend is not None:
+            R = assemble_vector(dofs, self.element_residual(problem, x, problem.stiffening, False)[0], x.size)
+            t_blend, s_bar = blend.partials(lam_f, x, target, R)
+            t_bar += t_blend
+        return t_bar, f_bar, s_bar
+
+    def transposed_solve(self, problem: MotionProblem, x, rhs, solver=None, blend=None):
+        """``D_x^T lam = rhs`` at ``x``: ``(lam_f, lam_p)``, zero on the fixed (free) dofs.
+
+        ``A_ff^T lam_f = rhs_f`` with the free block of ``W K + S_c``, then
+        ``lam_p = rhs_p - (K^T W lam_f)_p`` -- the same Dirichlet operator as the
+        forward solve, homogeneous. ``solver``: the forward solve's
+        :class:`~tofsi.linalg.RecyclingSolver` (its factorization preconditions).
+        """
+        blend = self.blend(problem) if blend is None else blend
+        _, Ke = self.element_residual(problem, np.asarray(x, float).reshape(-1), problem.stiffening)
+        return transposed_solve(problem, Ke, np.asarray(rhs, float).reshape(-1),
+                                solver or self._solver(problem), blend)
+
+    def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
+        """Vector-Jacobian product of the map (prescribed, stiffening, blend) -> displacement.
+
+        xbar : (n, 2) adjoint of the displacement; returns
+        ``(prescribed_bar (n, 2), stiffening_bar (Em,), blend_bar (n,))``. For a
+        residual mover the implicit-function adjoint at the equilibrium: one
+        transposed tangent solve ``D_x^T lam = xbar``, then ``-(lam^T dD/d(target, f, s))``.
+        """
+        x = np.asarray(result.displacement, float).reshape(-1)
+        lam, lam_p = self.transposed_solve(problem, x, xbar, result.solver, result.blend)
+        t_bar, f_bar, s_bar = self.residual_partials(problem, x, result.target, lam + lam_p, result.blend)
+        return -t_bar.reshape(-1, 2), -f_bar, -s_bar
 
     # helpers ---------------------------------------------------------------
     def _solver(self, problem: MotionProblem) -> RecyclingSolver:
@@ -243,10 +335,12 @@ class Mover(ABC):
         report.converged = False
         report.message = message
         report.wall_time_s = time.perf_counter() - t0
-        diagnostic = {"report": report.as_dict(),
-                      "quality": quality_record(problem, x.reshape(-1, 2), np.nan)}
-        log.error("%s mover failed: %s", report.mover, message)
-        raise NumericalError(f"{report.mover} mover: {message}", diagnostic, state=x.reshape(-1, 2))
+        worst = quality_record(problem, x.reshape(-1, 2), np.nan)
+        diagnostic = {"report": report.as_dict(), "quality": worst}
+        where = (f"; worst element {worst['worst_element']} (skewness {worst['min_skewness']:.3g}) at "
+                 f"({worst['worst_location'][0]:.3g}, {worst['worst_location'][1]:.3g}) m")
+        log.info("%s mover failed: %s", report.mover, message)   # the caller reports the error
+        raise NumericalError(f"{report.mover} mover: {message}{where}", diagnostic, state=x.reshape(-1, 2))
 
     @staticmethod
     def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float,

@@ -10,7 +10,9 @@ displacement and ``c_i`` a stiffness scale (the mean diagonal of the mover's
 reference stiffness at the node) that keeps both parts of comparable size.
 ``s = 0`` everywhere is the explicit-interface form; ``s = 1`` on the solid's
 nodes makes them follow the structure exactly. Per dof this is a row weight
-``W = 1 - s`` on the mover's equations plus a diagonal ``S_c = s c``.
+``W = 1 - s`` on the mover's equations plus a diagonal ``S_c = s c``. This
+module is the only place that writes that algebra down: the blended residual,
+its Jacobian and its partial derivatives.
 """
 
 from __future__ import annotations
@@ -39,12 +41,26 @@ class Blend:
         diag = np.where(is_fixed, 0.0, s_dof * c_dof)
         return cls(s, c, weight, diag)
 
-    def matrix(self, bc, Ke: np.ndarray, dofs: np.ndarray) -> sp.csr_matrix:
-        """``P_f (W K + S_c) P_f + P_p`` from element matrices of ``K``."""
-        return bc.matrix(Ke * self.weight[dofs][:, :, None]) + sp.diags(self.diag)
-
     def weighted(self, v: np.ndarray) -> np.ndarray:
         return self.weight * v
+
+    def residual(self, r: np.ndarray, x: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """``W r + S_c (x - target)`` (2n,) from the mover's assembled residual ``r``."""
+        return self.weight * r + self.diag * (x - target)
+
+    def matrix(self, bc, Ke: np.ndarray, dofs: np.ndarray) -> sp.csr_matrix:
+        """``P_f (W K + S_c) P_f + P_p`` from element matrices of ``K`` (constant fixed values)."""
+        return bc.matrix(Ke * self.weight[dofs][:, :, None]) + sp.diags(self.diag)
+
+    def row_matrix(self, bc, Ke: np.ndarray, dofs: np.ndarray) -> sp.csr_matrix:
+        """``P_f (W K + S_c) + P_p``: the free rows keep their fixed columns (true Jacobian)."""
+        return (bc.row_matrix(Ke * self.weight[dofs][:, :, None]) + sp.diags(self.diag)).tocsr()
+
+    def partials(self, lam: np.ndarray, x: np.ndarray, target: np.ndarray, r: np.ndarray):
+        """``lam^T d(W r + S_c (x - target))/d(target, s)`` for free-row multipliers ``lam``:
+        ``-S_c lam`` (2n,) and ``lam_i . (c_i (x_i - target_i) - r_i)`` (n,)."""
+        s_bar = (lam * (np.repeat(self.c, 2) * (x - target) - r)).reshape(-1, 2).sum(axis=1)
+        return -self.diag * lam, s_bar
 
 
 def node_scale(Ke: np.ndarray, dofs: np.ndarray, n_nodes: int) -> np.ndarray:

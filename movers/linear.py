@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult
-from movers.incremental import increments_vjp, linear_partials, linear_residual, run_increments
+from movers.incremental import increments_vjp, run_increments
 from tofsi.config import option
 from tofsi.errors import NumericalError
-from tofsi.physics.elasticity import element_stiffness, lame
+from tofsi.fem.elasticity import element_stiffness, lame
 
 
 @dataclass(frozen=True)
@@ -46,20 +46,10 @@ class LinearElasticMover(Mover):
     def path_dependent(self) -> bool:
         return self.params.increments > 1
 
-    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
-        """One increment on the reference mesh is linear: ``D = W K x + S_c (x - target)``."""
-        if self.path_dependent:
-            return super().residual(problem, x, target, blend)
-        blend = self._blend(problem) if blend is None else blend
-        Ke = self.element_matrices()(problem.points[problem.quads]) * problem.stiffening[:, None, None]
-        return linear_residual(problem, Ke, np.asarray(x, float).reshape(-1),
-                               np.asarray(target, float).reshape(-1), blend)
-
-    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None):
-        blend = self._blend(problem) if blend is None else blend
-        return linear_partials(problem, self.element_matrices()(problem.points[problem.quads]),
-                               np.asarray(x, float).reshape(-1), np.asarray(target, float).reshape(-1),
-                               np.asarray(lam, float).reshape(-1), blend)
+    def element_residual(self, problem: MotionProblem, x: np.ndarray, factors, tangent: bool = True):
+        """One increment on the reference mesh is linear: ``R_e = f_e K0_e x_e``."""
+        K = self.element_matrices()(problem.points[problem.quads]) * np.asarray(factors)[:, None, None]
+        return np.einsum("eab,eb->ea", K, np.asarray(x).reshape(-1)[problem.dofs]), (K if tangent else None)
 
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
         return self.element_matrices()(problem.points[problem.quads])
@@ -68,7 +58,7 @@ class LinearElasticMover(Mover):
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
         solver = self._solver(problem)
-        blend = self._blend(problem)
+        blend = self.blend(problem)
         try:
             x, states = run_increments(problem, target, self.params.increments,
                                        self.element_matrices(), solver, report, progress, blend)
@@ -78,7 +68,9 @@ class LinearElasticMover(Mover):
                             target=target)
 
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
-        """Reverse sweep; with one increment this is the adjoint of ``K x = 0, x_p = u_p``."""
+        """Reverse sweep through the increments (with one: the adjoint of ``K x = 0, x_p = u_p``)."""
+        if not self.path_dependent:
+            return super().vjp(problem, result, xbar)
         t_bar, f_bar, s_bar = increments_vjp(problem, result.trajectory, result.target,
                                              self.element_matrices(), result.solver, xbar, result.blend)
         return t_bar.reshape(-1, 2), f_bar, s_bar

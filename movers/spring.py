@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult
-from movers.incremental import increment, linear_partials, linear_residual, increments_vjp, run_increments
+from movers.incremental import increment, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, quad_stiffness
 from tofsi import quality
 from tofsi.config import option
@@ -57,22 +57,13 @@ class SpringMover(Mover):
         """Several increments, or selective diagonals (chosen from the motion itself)."""
         return self.params.increments > 1 or self.params.diagonals == "selective"
 
-    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
-        """One increment on the reference mesh is linear: ``D = W K x + S_c (x - target)``."""
+    def element_residual(self, problem: MotionProblem, x: np.ndarray, factors, tangent: bool = True):
+        """One increment with fixed diagonals is linear: ``R_e = f_e K0_e(X) x_e``."""
         if self.path_dependent:
-            return super().residual(problem, x, target, blend)
-        blend = self._blend(problem) if blend is None else blend
+            return super().element_residual(problem, x, factors, tangent)
         codes = np.full(len(problem.quads), DIAGONALS.index(self.params.diagonals))
-        Ke = self.element_matrices(codes)(problem.points[problem.quads]) * problem.stiffening[:, None, None]
-        return linear_residual(problem, Ke, np.asarray(x, float).reshape(-1),
-                               np.asarray(target, float).reshape(-1), blend)
-
-    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None):
-        blend = self._blend(problem) if blend is None else blend
-        codes = np.full(len(problem.quads), DIAGONALS.index(self.params.diagonals))
-        return linear_partials(problem, self.element_matrices(codes)(problem.points[problem.quads]),
-                               np.asarray(x, float).reshape(-1), np.asarray(target, float).reshape(-1),
-                               np.asarray(lam, float).reshape(-1), blend)
+        K = self.element_matrices(codes)(problem.points[problem.quads]) * np.asarray(factors)[:, None, None]
+        return np.einsum("eab,eb->ea", K, np.asarray(x).reshape(-1)[problem.dofs]), (K if tangent else None)
 
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
         """Both-diagonal matrices of the reference mesh (the blend scale must not depend
@@ -96,7 +87,7 @@ class SpringMover(Mover):
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
         solver = self._solver(problem)
-        blend = self._blend(problem)
+        blend = self.blend(problem)
         choice = self.params.diagonals
         if choice == "selective":
             codes = self.choose_diagonals(problem, target, solver, report, blend)

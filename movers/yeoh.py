@@ -29,10 +29,9 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
-from movers.base import MotionProblem, Mover, MoveReport, MoveResult, quality_record
-from movers.incremental import COMPLEX_STEP, element_apply, system, transposed_solve
+from movers.base import MotionProblem, Mover, MoveReport, MoveResult, element_apply, quality_record
+from movers.incremental import system
 from movers.yeoh_material import stress, stress_and_tangent
 from tofsi import quality
 from tofsi.config import option
@@ -40,7 +39,8 @@ from tofsi.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector, weighted_gram
 from tofsi.fem.geometry import physical_gradients
 from tofsi.fem.quadrature import gauss_square
-from tofsi.linalg import RecyclingSolver  # noqa: F401  (type of the solver argument)
+from tofsi.iteration import forcing_term
+from tofsi.linalg import RecyclingSolver
 
 log = logging.getLogger(__name__)
 ROUND_OFF = 1e3 * np.finfo(float).eps      # attainable |R| relative to the forces' size
@@ -123,7 +123,7 @@ class Equations:
     def residual(self, Re: np.ndarray, x: np.ndarray, load: float) -> np.ndarray:
         r = assemble_vector(self.dofs, Re, x.size)
         if self.blend is not None:
-            r = self.blend.weighted(r) + self.blend.diag * (x - load * self.target)
+            r = self.blend.residual(r, x, load * self.target)
         return self.bc.homogenize(r)
 
     def matrix(self, Ke: np.ndarray):
@@ -143,33 +143,19 @@ class YeohMover(Mover):
     name = "yeoh"
     Params = YeohParams
 
-    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
-        """``D(x)`` at full load and its true Jacobian ``W K + S_c`` (consistent tangent)."""
-        blend = self._blend(problem) if blend is None else blend
-        x = np.asarray(x, float).reshape(-1)
-        target = np.asarray(target, float).reshape(-1)
-        eqs = Equations(YeohKernel(problem, self.params), blend, target)
-        Re, Ke, det = eqs.kernel.evaluate(x)
+    def element_residual(self, problem: MotionProblem, x: np.ndarray, factors, tangent: bool = True):
+        """Internal forces ``(Em, 8)`` and consistent tangents of the reference mesh at ``x``."""
+        Re, Ke, det = YeohKernel(problem, self.params, factors).evaluate(np.asarray(x).reshape(-1), tangent)
         if Re is None:
             raise NumericalError("yeoh residual: an element is inverted (det F <= 0)",
                                  {"min_det_F": float(det.min())})
-        r = eqs.residual(Re, x, 1.0)
-        r[eqs.bc.fixed] = (x - target)[eqs.bc.fixed]
-        K = eqs.bc.row_matrix(Ke if blend is None else Ke * blend.weight[eqs.dofs][:, :, None])
-        if blend is not None:
-            K = K + sp.diags(blend.diag)
-        return r, K.tocsr()
-
-    def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
-        """Small-strain tangent of the reference mesh (unit stiffening)."""
-        kernel = YeohKernel(problem, self.params, np.ones(len(problem.quads)))
-        return kernel.evaluate(np.zeros(2 * problem.n_nodes))[1]
+        return Re, Ke
 
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
         p = self.params
-        blend = self._blend(problem)
+        blend = self.blend(problem)
         eqs = Equations(YeohKernel(problem, p), blend, target)
         solver = self._solver(problem)
         x = np.zeros_like(target)
@@ -197,55 +183,6 @@ class YeohMover(Mover):
             if len(history) <= 4:                # easy increment: take a longer next one
                 step *= 1.5
         return self._finish(report, problem, x, t0, solver, blend=blend, target=target)
-
-    def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
-        """Implicit-function adjoint at the equilibrium: one transposed tangent solve,
-        ``D_x^T lam = xbar``, then ``-(lam^T dD/d(target, f, s))``."""
-        x = np.asarray(result.displacement, dtype=float).reshape(-1)
-        blend, u = result.blend, result.target
-        eqs = Equations(YeohKernel(problem, self.params), blend, u)
-        Re, Ke, _ = eqs.kernel.evaluate(x)
-        solver = result.solver or self._solver(problem)
-        lam, lam_p = transposed_solve(eqs.bc, eqs.matrix(Ke), Ke, eqs.dofs,
-                                      np.asarray(xbar, float).reshape(-1), solver, blend)
-        t_bar, f_bar, s_bar = self.residual_partials(problem, x, u, lam + lam_p, blend, Re)
-        return -t_bar.reshape(-1, 2), -f_bar, -s_bar
-
-    def residual_partials(self, problem: MotionProblem, x, target, lam, blend=None, Re=None):
-        """``lam^T dD/d(target, f, s)``: ``-(lam_p + S_c lam_f)``, ``(W lam)_e . dR_e/df_e``
-        (complex step in the factor), ``lam_i . (c_i (x_i - target_i) - R_i)``."""
-        x = np.asarray(x, float).reshape(-1)
-        target = np.asarray(target, float).reshape(-1)
-        lam = np.asarray(lam, float).reshape(-1)
-        blend = self._blend(problem) if blend is None else blend
-        kernel = YeohKernel(problem, self.params)
-        bc, dofs = problem.bc, problem.dofs
-        if Re is None:
-            Re = kernel.evaluate(x, tangent=False)[0]
-        lam_f = bc.homogenize(lam)
-        t_bar = np.zeros_like(lam)
-        t_bar[bc.fixed] = -lam[bc.fixed]
-        lam_w = lam_f if blend is None else blend.weighted(lam_f)
-        h = COMPLEX_STEP
-        dR_df = YeohKernel(problem, self.params, problem.stiffening + 1j * h).evaluate(
-            x, tangent=False)[0].imag / h
-        f_bar = np.einsum("ea,ea->e", lam_w[dofs], dR_df)
-        s_bar = np.zeros(problem.n_nodes)
-        if blend is not None:
-            t_bar -= blend.diag * lam_f
-            R = assemble_vector(dofs, Re, x.size)
-            s_bar = (lam_f * (np.repeat(blend.c, 2) * (x - target) - R)).reshape(-1, 2).sum(axis=1)
-        return t_bar, f_bar, s_bar
-
-    @staticmethod
-    def _forcing(history: list[float], target: float) -> float:
-        """Relative tolerance of the next Newton solve (Eisenstat-Walker choice 2).
-
-        Loose while the residual is large, ``0.9 (r_k / r_{k-1})^2`` as it
-        converges, never tighter than the final tolerance needs.
-        """
-        eta = 0.1 if len(history) < 2 else min(0.1, 0.9 * (history[-1] / history[-2]) ** 2)
-        return max(eta, 0.1 * target / history[-1])
 
     def _line_search(self, eqs: Equations, x, dx, r, norm, load):
         """Step length along ``dx``: returns (x_new, Re, Ke or None) or None.
@@ -315,6 +252,7 @@ class YeohMover(Mover):
             r = eqs.residual(Re, x, load1)
             norm = float(np.linalg.norm(r))
             history.append(norm)
+            log.info("yeoh Newton %d: |R| = %.3e", it, norm)
             if not np.isfinite(norm):
                 return None, None, history, "non-finite residual"
             forces = np.linalg.norm(assemble_vector(eqs.dofs, Re, x.size))   # reactions, and the
@@ -324,7 +262,7 @@ class YeohMover(Mover):
                 return x, (Re, Ke), history, ""
             if it == p.max_newton:
                 return None, None, history, f"{p.max_newton} Newton iterations"
-            dx = solver.solve(eqs.matrix(Ke), -r, rtol=self._forcing(history, target))
+            dx = solver.solve(eqs.matrix(Ke), -r, rtol=forcing_term(history, target))
             dx[bc.fixed] = 0.0
             report.linear_solves += 1
             report.newton_iterations += 1

@@ -101,7 +101,7 @@ def block_channel(alpha_max, density=1.0):
     mesh = StructuredQuadMesh(np.linspace(0, 2, 41), np.linspace(0, 1, 21))
     c = mesh.centroids
     rho = ((np.abs(c[:, 0] - 1.0) < 0.2) & (np.abs(c[:, 1] - 0.5) < 0.2)).astype(float)
-    flow = Flow(mesh, FluidSettings(density=density, alpha_max=alpha_max, brinkman_q=0.1))
+    flow = Flow(mesh, FluidSettings(density=density, alpha_max=alpha_max))
     return mesh, flow, rho
 
 

@@ -60,7 +60,7 @@ def test_pipe_bend_with_a_bottom_outlet_passes_check_gradients(tmp_path, capsys)
     mesh, with its dissipation and with the pressure drop between the left and bottom openings."""
     for objective in ("dissipation", "pressure-drop"):
         args = ["check-gradients", str(scene_path("pipe_bend")), "--set", "mesh.h_min=0.05", "--set",
-                "mesh.h_max=0.05", "--set", f"design.objective={objective}", "--output", str(tmp_path),
+                "mesh.h_max=0.05", "--set", f"design.objective={objective}", "--output", str(tmp_path / objective),
                 "--json", "-q"]
         assert main(args) == 0
         out = json.loads(capsys.readouterr().out)

@@ -12,8 +12,9 @@ The motion is a displacement of every node of the solid elements:
   ``(-eta sin phi, v - eta (1 - cos phi))``; the tips move down by ``d``, the
   centre stays, the thickness is kept;
 * ``pressure`` -- a cantilever clamped on the channel walls under a uniform
-  pressure on its upstream (left-facing) faces, solved with plane-strain
-  elasticity on the solid and scaled so the largest displacement is
+  pressure on its upstream (left-facing) faces, solved with the structure
+  block (plane-strain elasticity of the unified domain, the void at the
+  scene's ``e_min_ratio``) and scaled so the largest displacement is
   ``tip_displacement``;
 * ``fsi`` -- the structure's displacement under the flow (Navier-Stokes with
   Brinkman friction in the solid, the total-stress load), scaled to
@@ -23,13 +24,11 @@ The motion is a displacement of every node of the solid elements:
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse.linalg as spla
 
 from tofsi.errors import InputError
-from tofsi.fem.assembly import element_dofs
-from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.mesh import SOLID, StructuredQuadMesh
-from tofsi.physics.elasticity import element_stiffness, lame
+from tofsi.physics.flow import Flow
+from tofsi.physics.structure import Structure
 from tofsi.quality import signed_area
 
 
@@ -73,47 +72,45 @@ def upstream_pressure_load(mesh: StructuredQuadMesh, pressure: float = 1.0) -> n
     return f
 
 
-def cantilever_under_pressure(mesh: StructuredQuadMesh, clamped_sides, poisson_ratio: float,
-                              tip_displacement: float) -> np.ndarray:
-    """Displacement ``(n, 2)`` of the solid under upstream pressure, scaled to the tip value."""
-    solid = np.flatnonzero(mesh.region == SOLID)
-    q = mesh.quads[solid]
-    dofs = element_dofs(q, 2)
-    Ke = element_stiffness(mesh.points[q], *lame(1.0, poisson_ratio))
-    in_solid = np.zeros(mesh.n_nodes, dtype=bool)
-    in_solid[q.ravel()] = True
-    clamped = np.concatenate([mesh.side_nodes(s) for s in clamped_sides])
-    clamped = clamped[in_solid[clamped]]
-    if clamped.size == 0:
-        raise InputError("structure.clamped", list(clamped_sides),
-                         "the solid touches none of these channel sides; it cannot be clamped")
-    fixed_nodes = np.union1d(clamped, np.flatnonzero(~in_solid))
-    bc = DirichletOperator(dofs, dofs, 2 * mesh.n_nodes, element_dofs(fixed_nodes[:, None], 2).ravel())
-    f = bc.homogenize(upstream_pressure_load(mesh))
-    u = spla.spsolve(bc.matrix(Ke).tocsc(), f).reshape(-1, 2)
+def solid_part(mesh: StructuredQuadMesh, u: np.ndarray) -> np.ndarray:
+    """``u`` ``(n, 2)`` on the nodes of solid elements, zero elsewhere."""
+    out = np.zeros((mesh.n_nodes, 2))
+    solid = mesh.nodes_of(SOLID)
+    out[solid] = np.asarray(u).reshape(-1, 2)[solid]
+    return out
+
+
+def scaled_to(u: np.ndarray, tip_displacement: float, mode: str) -> np.ndarray:
+    """``u`` scaled so that its largest nodal displacement is ``tip_displacement``."""
     peak = np.max(np.linalg.norm(u, axis=1))
     if not np.isfinite(peak) or peak == 0.0:
-        raise InputError("deformation.mode", "pressure", "the solid has no upstream face to load")
+        raise InputError("deformation.mode", mode, "the load does not move the solid")
     return u * (tip_displacement / peak)
+
+
+def cantilever_under_pressure(mesh: StructuredQuadMesh, structure, tip_displacement: float) -> np.ndarray:
+    """Displacement ``(n, 2)`` of the solid under upstream pressure, scaled to the tip value."""
+    solid_nodes = mesh.nodes_of(SOLID)
+    clamped = np.concatenate([mesh.side_nodes(s) for s in structure.clamped])
+    if np.intersect1d(clamped, solid_nodes).size == 0:
+        raise InputError("structure.clamped", list(structure.clamped),
+                         "the solid touches none of these channel sides; it cannot be clamped")
+    load = upstream_pressure_load(mesh)
+    if not np.any(load):
+        raise InputError("deformation.mode", "pressure", "the solid has no upstream face to load")
+    block = Structure(mesh, structure)
+    rho = (mesh.region == SOLID).astype(float)
+    u = block.factorize(rho).solve(block.bc.homogenize(load))
+    return scaled_to(solid_part(mesh, u), tip_displacement, "pressure")
 
 
 def structure_under_flow(mesh: StructuredQuadMesh, structure, fluid, deformation) -> np.ndarray:
     """Displacement ``(n, 2)`` of the solid nodes under the flow (one-way coupled solve)."""
-    from tofsi.physics.flow import Flow
-    from tofsi.physics.structure import Structure
     rho = (mesh.region == SOLID).astype(float)
     flow = Flow(mesh, fluid)
     w, _ = flow.solve(rho=rho)
-    u = Structure(mesh, structure, flow).solve(w, None, rho).reshape(-1, 2)
-    out = np.zeros_like(u)
-    solid = mesh.nodes_of(SOLID)
-    out[solid] = u[solid]
-    if deformation.scale:
-        peak = np.max(np.linalg.norm(out, axis=1))
-        if peak == 0.0:
-            raise InputError("deformation.mode", "fsi", "the flow does not load the solid")
-        out *= deformation.tip_displacement / peak
-    return out
+    u = solid_part(mesh, Structure(mesh, structure, flow).solve(w, None, rho))
+    return scaled_to(u, deformation.tip_displacement, "fsi") if deformation.scale else u
 
 
 def prescribed_motion(mesh: StructuredQuadMesh, deformation, structure, fluid=None) -> np.ndarray:
@@ -131,8 +128,7 @@ def prescribed_motion(mesh: StructuredQuadMesh, deformation, structure, fluid=No
     elif mode == "bending":
         u[solid_nodes] = u_bending(X, np.array([X.min(axis=0), X.max(axis=0)]), deformation.bending_tip)
     elif mode == "pressure":
-        u = cantilever_under_pressure(mesh, structure.clamped, structure.poisson_ratio,
-                                      deformation.tip_displacement)
+        u = cantilever_under_pressure(mesh, structure, deformation.tip_displacement)
     elif mode == "fsi":
         u = structure_under_flow(mesh, structure, fluid, deformation)
     else:

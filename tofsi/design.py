@@ -13,6 +13,7 @@ vector-Jacobian product), so the chain rule is written once, in
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,15 +74,14 @@ class DesignMap:
         self.base = (mesh.region == SOLID).astype(float)
         self.filter = DensityFilter(mesh.centroids[self.design], filter_radius)
         self.projection = Projection(beta, eta)
-        self.n_elements = mesh.n_elements
 
     @property
     def size(self) -> int:
         return self.design.size
 
     def with_beta(self, beta: float) -> "DesignMap":
-        other = object.__new__(DesignMap)
-        other.__dict__.update(self.__dict__)
+        """The same map with projection sharpness ``beta`` (the filter is shared)."""
+        other = copy.copy(self)
         other.projection = Projection(beta, self.projection.eta)
         return other
 

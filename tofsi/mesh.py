@@ -110,6 +110,18 @@ class StructuredQuadMesh:
         i, j = self._side_grid(side, self.nx, self.ny)
         return self.node(i, j)
 
+    @cached_property
+    def boundary_nodes(self) -> np.ndarray:
+        """Q1 nodes on the channel's outer boundary (all four sides)."""
+        return _frozen(np.unique(np.concatenate([self.side_nodes(s) for s in SIDES])))
+
+    def grid_positions(self) -> np.ndarray:
+        """Integer fine-grid positions ``(n, 2)`` of the Q1 nodes: node ``(i, j)`` at ``(2i, 2j)``
+        (Q2 nodes fill the odd positions; nested-dissection orderings cut along even lines)."""
+        i = np.tile(np.arange(self.nx + 1), self.ny + 1)
+        j = np.repeat(np.arange(self.ny + 1), self.nx + 1)
+        return np.column_stack([2 * i, 2 * j])
+
     def nodes_of(self, region: int) -> np.ndarray:
         """Nodes used by at least one element of ``region``."""
         return np.unique(self.quads[self.region == region])

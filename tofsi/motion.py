@@ -1,10 +1,12 @@
 """Mesh-motion studies: a scene's structure motion applied to its fluid mesh.
 
-The moving quads are the non-solid elements; every solid node follows the
-structure (``x = u``), every node on the channel boundary stays (``x = 0``),
-and the scene's mover places the rest. Layered stiffening factors
-(``mover.layers``) apply to the element layers counted from the
-fluid-structure interface.
+The study moves the scene's mesh with :class:`~tofsi.physics.mesh_motion.MeshMotion`
+-- the same entry point the coupled model uses -- in its explicit-interface
+form: the moving quads are the non-solid elements, every solid node follows
+the prescribed structure motion (``x = u``), every node on the channel
+boundary stays (``x = 0``), and the scene's mover places the rest. Layered
+stiffening factors (``mover.layers``) apply to the element layers counted
+from the fluid-structure interface.
 """
 
 from __future__ import annotations
@@ -20,21 +22,30 @@ from tofsi import quality
 from tofsi.channel import build_mesh
 from tofsi.deformation import prescribed_motion
 from tofsi.errors import InputError
-from tofsi.layers import element_layers, stiffening_field
-from tofsi.mesh import SIDES, SOLID, StructuredQuadMesh
+from tofsi.mesh import StructuredQuadMesh
+from tofsi.physics.mesh_motion import MeshMotion
 
 
 @dataclass
 class MotionSetup:
     mesh: StructuredQuadMesh
-    problem: MotionProblem
-    moving: np.ndarray           # (Em,) element ids of the moving quads
-    layer: np.ndarray            # (E,) layer number from the interface (0: none)
+    motion: MeshMotion
     prescribed: np.ndarray       # (n, 2) structure motion, zero elsewhere [m]
 
+    @property
+    def problem(self) -> MotionProblem:
+        """The mover's problem (the moving quads, the prescribed nodes, the stiffening)."""
+        return self.motion.base
 
-def boundary_nodes(mesh: StructuredQuadMesh) -> np.ndarray:
-    return np.unique(np.concatenate([mesh.side_nodes(s) for s in SIDES]))
+    @property
+    def moving(self) -> np.ndarray:
+        """(Em,) element ids of the moving quads."""
+        return self.motion.moving
+
+    @property
+    def layer(self) -> np.ndarray:
+        """(E,) layer number from the interface (0: none)."""
+        return self.motion.layer
 
 
 @lru_cache(maxsize=4)
@@ -47,30 +58,22 @@ def _mesh_and_motion(geometry, mesh_settings, deformation, structure, fluid):
 
 
 def motion_setup(scene, prescribed: np.ndarray | None = None) -> MotionSetup:
-    """Mesh, mover problem and prescribed motion of a mesh-motion scene."""
+    """Mesh, mesh motion and prescribed structure motion of a mesh-motion scene."""
+    if scene.effects.mesh_motion == "none":
+        raise InputError("mover.name", "none", "a mesh-motion study needs a mover; allowed: "
+                         + ", ".join(map(repr, movers.available())))
     if prescribed is None:
         mesh, prescribed = _mesh_and_motion(scene.geometry, scene.mesh, scene.deformation,
                                             scene.structure, scene.fluid if scene.deformation.mode == "fsi" else None)
     else:
         mesh = build_mesh(scene.geometry, scene.mesh)
-    moving = np.flatnonzero(mesh.region != SOLID)
-    fixed = np.union1d(mesh.nodes_of(SOLID), boundary_nodes(mesh))
-    n_layers = len(scene.mover.layers)
-    layer = element_layers(mesh.incidence, mesh.interface_nodes, mesh.region != SOLID,
-                           n_layers=max(n_layers, 10))
-    factors = stiffening_field(layer, scene.mover.layers)
-    problem = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
-    return MotionSetup(mesh, problem, moving, layer, prescribed)
+    return MotionSetup(mesh, MeshMotion(mesh, scene), prescribed)
 
 
 def run_move(scene, progress=None, setup: MotionSetup | None = None) -> tuple[MotionSetup, MoveResult]:
     """Apply the scene's motion with its mover; raises NumericalError on failure."""
-    if scene.effects.mesh_motion == "none":
-        raise InputError("mover.name", "none", "a mesh-motion study needs a mover; allowed: "
-                         + ", ".join(map(repr, movers.available())))
     setup = setup or motion_setup(scene)
-    mover = movers.mover_class(scene.mover.name)(scene.mover.options)
-    return setup, mover.move(setup.problem, setup.prescribed, progress)
+    return setup, setup.motion.move(setup.prescribed, progress=progress)
 
 
 def moved_quality(setup: MotionSetup, displacement: np.ndarray) -> quality.QualitySummary:

@@ -6,24 +6,28 @@
     g, dg = problem.constraints(gamma)       # g <= 0 is feasible, dg: (m, n_design)
 
 One forward solve and one adjoint solve per quantity at each new design,
-cached, because an optimizer asks for the objective and every constraint at
-the same point. The previous state warm-starts the next forward solve.
+cached (keyed by the design and the continuation parameters), because an
+optimizer asks for the objective and every constraint at the same point.
+The previous state warm-starts the next forward solve; every solve creates
+its own linear solvers, so its result depends only on its inputs.
 Continuation parameters (projection sharpness, SIMP penalty, Brinkman q) are
-set with :meth:`Problem.set_stage`.
+a frozen record, :attr:`Problem.params`, set with :meth:`Problem.set_stage`
+and passed into every solve.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
 from adjoint import Adjoint
+from tofsi.blocks import Continuation
 from tofsi.coupled import CoupledModel, State
 from tofsi.design import DesignMap
+from tofsi.design_file import read_design
 from tofsi.errors import InputError
-from tofsi.interpolation import SIMP
-from tofsi.linalg import RecyclingSolver
 from tofsi.objectives import OBJECTIVES, VolumeFraction
 
 
@@ -36,11 +40,11 @@ class Problem:
         self.scene = scene
         self.model = CoupledModel(scene, mesh)
         d = scene.design
-        needs = {"compliance": "structure", "dissipation": "fluid", "dissipation-strain": "fluid",
-                 "pressure-drop": "fluid"}[d.objective]
+        needs = OBJECTIVES[d.objective].needs                 # the effect it is a figure of
         if getattr(scene.effects, needs) == "none":
             raise InputError("design.objective", d.objective, f"needs effects.{needs}")
-        self.map = DesignMap(self.model.mesh, d.filter_radius, d.beta[0], d.eta)
+        self.params: Continuation = self.model.params
+        self.map = DesignMap(self.model.mesh, d.filter_radius, self.params.beta, d.eta)
         self.objective = OBJECTIVES[d.objective]()
         self.volume_fraction = VolumeFraction(self.model.mesh, self.map.design)
         self._cache: dict = {}
@@ -58,36 +62,23 @@ class Problem:
         if not path:
             fraction = self.scene.design.volume_fraction
             return np.full(self.n_design, fraction if self.scene.design.constraint == "solid" else 1 - fraction)
-        from pathlib import Path
-        if not Path(path).is_file():
-            raise InputError("design.initial", path, "no such file (a design.npy of an earlier run)")
-        try:
-            gamma = np.load(path)
-        except (ValueError, OSError) as err:
-            raise InputError("design.initial", path, f"not a NumPy array file ({err})") from None
-        if gamma.shape != (self.n_design,) or not np.all(np.isfinite(gamma)):
-            raise InputError("design.initial", path, f"needs {self.n_design} finite values (this scene's "
-                                                     "design variables), got shape " + str(gamma.shape))
-        return np.clip(gamma, 0.0, 1.0)
+        return read_design(path, self.n_design)         # checked: shape, finite, in [0, 1]
 
-    def set_stage(self, beta: float | None = None, penalty: float | None = None, q: float | None = None):
-        """Change continuation parameters (the cache is cleared)."""
+    def set_stage(self, beta: float | None = None, penalty: float | None = None, q: float | None = None,
+                  coupling: str | None = None):
+        """Change continuation parameters: a new :attr:`params` record (nothing else changes)."""
+        changes = {k: float(v) for k, v in (("beta", beta), ("penalty", penalty), ("brinkman_q", q))
+                   if v is not None}
+        if coupling is not None:
+            changes["coupling"] = coupling
+        self.params = dataclasses.replace(self.params, **changes)
         if beta is not None:
             self.map = self.map.with_beta(beta)
-        if penalty is not None and self.model.structure is not None:
-            s = self.model.structure.simp
-            self.model.structure.simp = SIMP(s.E0, s.Emin, penalty)
-        if q is not None:
-            flow = self.model.flow
-            flow.brinkman = dataclasses.replace(flow.brinkman, q=q)
-        self._cache.clear()
 
     def reset_solvers(self) -> None:
-        """Forget recycled factorizations, so that the next solve depends only on its inputs
-        (bitwise reproducible runs, also after a resume)."""
-        flow = self.model.flow
-        flow.solver = RecyclingSolver(flow._factorize)
-        self.model._newton_solver = None
+        """Deprecated: every solve creates its own solvers, so there is nothing to reset."""
+        warnings.warn("Problem.reset_solvers() is no longer needed: every solve starts with fresh "
+                      "solvers", DeprecationWarning, stacklevel=2)
 
     def set_guess(self, state: State | None) -> None:
         """The state the next forward solve starts from."""
@@ -107,11 +98,11 @@ class Problem:
             raise ValueError(f"gamma must have {self.n_design} entries")
         if not np.all(np.isfinite(gamma)):
             raise InputError("gamma", "non-finite", "design variables must be finite")
-        key = gamma.tobytes()
+        key = (gamma.tobytes(), self.params)
         if key not in self._cache:
             rho = self.densities(gamma)
-            state = self.model.solve(rho, self._guess)
-            self._guess = state
+            state = self.model.solve(rho, self._guess, params=self.params)
+            self._guess = state.data()
             self._cache.clear()
             self._cache[key] = {"state": state, "gamma": gamma.copy()}
             self.evaluations += 1
@@ -119,7 +110,8 @@ class Problem:
 
     def _adjoint(self, entry) -> Adjoint:
         if "adjoint" not in entry:
-            entry["adjoint"] = Adjoint(self.model, entry["state"])
+            state = entry["state"]
+            entry["adjoint"] = Adjoint(self.model.system_for(state.params), state)
         return entry["adjoint"]
 
     def evaluate(self, gamma) -> tuple[float, np.ndarray]:
@@ -128,7 +120,7 @@ class Problem:
         if "objective" not in entry:
             state = entry["state"]
             f = self.objective.value(self.model, state)
-            df_drho = self._adjoint(entry).gradient(self.objective)
+            df_drho = self._adjoint(entry).gradient(self.objective.partials(self.model, state))
             entry["objective"] = (f, self.map.transpose(entry["gamma"], df_drho))
         return entry["objective"]
 
@@ -143,7 +135,8 @@ class Problem:
             state = entry["state"]
             d = self.scene.design
             solid = self.volume_fraction.value(self.model, state)
-            dsolid = self.map.transpose(entry["gamma"], self._adjoint(entry).gradient(self.volume_fraction))
+            dvolume = self._adjoint(entry).gradient(self.volume_fraction.partials(self.model, state))
+            dsolid = self.map.transpose(entry["gamma"], dvolume)
             sign, fraction = (1.0, solid) if d.constraint == "solid" else (-1.0, 1.0 - solid)
             g = fraction / d.volume_fraction - 1.0
             entry["constraints"] = (np.array([g]), sign * dsolid[None, :] / d.volume_fraction)

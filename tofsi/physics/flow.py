@@ -15,7 +15,9 @@ Steady Navier-Stokes is solved by Newton's method with a backtracking line
 search on ``|R|``; when it fails, by continuation in the fluid density
 (Reynolds number) from Stokes flow. Every solve reports its history and
 raises :class:`~tofsi.errors.NumericalError` rather than return an
-unconverged state.
+unconverged state. The Brinkman convexity ``q`` is an input of every call
+(``params``, a :class:`~tofsi.blocks.Continuation`); a solve creates its own
+linear solver, so its result depends only on its inputs.
 """
 
 from __future__ import annotations
@@ -27,18 +29,21 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from tofsi.blocks import Continuation
 from tofsi.errors import NumericalError
-from tofsi.fem.assembly import assemble_vector, element_dofs
+from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
+from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.dirichlet import DirichletOperator
-from tofsi.interpolation import Brinkman
-from tofsi.linalg import DirectSolver, RecyclingSolver, nested_dissection
 from tofsi.fem.geometry import map_points, physical_gradients
+from tofsi.interpolation import Brinkman
+from tofsi.iteration import backtracking, forcing_term
+from tofsi.linalg import DirectSolver, RecyclingSolver, nested_dissection
 from tofsi.physics.flow_boundary import FlowBoundary
 from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_element,
                                         velocity_fields)
+from tofsi.physics.fluid_shape import fluid_shape
 
 log = logging.getLogger(__name__)
-COMPLEX_STEP = 1e-30
 ROUND_OFF = 64 * np.finfo(float).eps        # componentwise backward error that counts as exact
 
 
@@ -52,6 +57,17 @@ class FlowReport:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+@dataclass
+class FlowSolution:
+    """A converged flow with the Jacobian of its last Newton check and the solver that
+    holds the last factorization (the adjoint solves with both)."""
+
+    w: np.ndarray
+    report: FlowReport
+    jacobian: sp.csr_matrix
+    solver: RecyclingSolver
 
 
 class Flow:
@@ -70,7 +86,6 @@ class Flow:
         self.body_force = body_force
         self.density = 0.0 if stokes else settings.density
         self.symmetric = settings.outlet == "traction-free"
-        self.brinkman = Brinkman(settings.alpha_max, settings.alpha_min, settings.brinkman_q)
         n9, n = mesh.n_nodes9, mesh.n_nodes
         self.n_velocity, self.size = 2 * n9, 2 * n9 + n
         self.dofs = np.hstack([element_dofs(mesh.quads9, 2), 2 * n9 + mesh.quads])   # (E, 22)
@@ -81,8 +96,9 @@ class Flow:
         self.values = np.zeros(self.size)
         self.values[:2 * n9] = self.boundary.values
         self.bc = DirichletOperator(self.dofs, self.dofs, self.size, np.concatenate(fixed))
-        self.solver = RecyclingSolver(self._factorize)
         self._perm = None
+        self._shape_kept = None           # (key, (R_e, dR_e/dXe)) of the last shape evaluation
+        self._shape_pattern = None        # CSR pattern of F_x
 
     # ---- geometry and state -------------------------------------------------------
     def corners(self, x=None) -> np.ndarray:
@@ -95,20 +111,25 @@ class Flow:
         we = w[self.dofs]
         return we[:, :18].reshape(-1, 9, 2), we[:, 18:]
 
-    def alpha(self, rho) -> np.ndarray:
-        """Brinkman friction per element; ``rho = None`` means all fluid."""
-        return self.brinkman(np.zeros(self.mesh.n_elements) if rho is None else rho)
+    def brinkman(self, params: Continuation | None = None) -> Brinkman:
+        """The friction interpolation at the Brinkman ``q`` of ``params``."""
+        q = Continuation().brinkman_q if params is None else params.brinkman_q
+        return Brinkman(self.settings.alpha_max, self.settings.alpha_min, q)
+
+    def alpha(self, rho, params: Continuation | None = None) -> np.ndarray:
+        """Brinkman friction per element [kg/(m^3 s)]; ``rho = None`` means all fluid."""
+        return self.brinkman(params)(np.zeros(self.mesh.n_elements) if rho is None else rho)
 
     def initial(self) -> np.ndarray:
         """The state with the boundary values and zero elsewhere."""
         return self.values.copy()
 
     # ---- residual, Jacobian, partials ---------------------------------------------
-    def element_residual(self, w, x, rho, jacobian=True, density=None, Xe=None):
+    def element_residual(self, w, x, rho, jacobian=True, density=None, Xe=None, params=None):
         """Element residuals and Jacobians on the mesh moved by ``x`` (or on corners ``Xe``)."""
         ve, pe = self.split(w)
         Xe = self.corners(x) if Xe is None else Xe
-        Re, Ke = fluid_element(Xe, ve, pe, self.alpha(rho),
+        Re, Ke = fluid_element(Xe, ve, pe, self.alpha(rho, params),
                                self.density if density is None else density,
                                self.settings.viscosity, self.symmetric, jacobian)
         if self.body_force is not None:
@@ -118,37 +139,55 @@ class Flow:
             Re[:, :18] -= np.matmul(N2.T, f * (det * WEIGHTS)[..., None]).reshape(len(Xe), 18)
         return Re, Ke
 
-    def residual(self, w, x=None, rho=None, density=None) -> np.ndarray:
+    def residual(self, w, x=None, rho=None, density=None, params=None) -> np.ndarray:
         """``F(w; x, rho)`` (size,), unconstrained (boundary rows included)."""
-        Re, _ = self.element_residual(w, x, rho, jacobian=False, density=density)
+        Re, _ = self.element_residual(w, x, rho, jacobian=False, density=density, params=params)
         return assemble_vector(self.dofs, Re, self.size)
 
-    def jacobian(self, w, x=None, rho=None, density=None):
-        """``F_w`` as the constrained CSR matrix (identity on fixed dofs) and ``F``."""
-        Re, Ke = self.element_residual(w, x, rho, density=density)
+    def jacobian(self, w, x=None, rho=None, density=None, params=None):
+        """``F_w`` as the constrained CSR matrix (identity on fixed dofs), ``F`` and the
+        element Jacobians."""
+        Re, Ke = self.element_residual(w, x, rho, density=density, params=params)
         return self.bc.matrix(Ke), assemble_vector(self.dofs, Re, self.size), Ke
 
-    def shape_partial(self, w, x=None, rho=None) -> sp.csr_matrix:
-        """``F_x`` (size x 2n): derivative with respect to the mesh displacement (complex step)."""
+    def shape_elements(self, w, x=None, rho=None, params=None):
+        """``(R_e (E, 22), dR_e/dXe (E, 22, 8))`` on the mesh moved by ``x``: the analytic shape
+        derivative (:func:`~tofsi.physics.fluid_shape.fluid_shape`), or with a body force the
+        complex step through :meth:`element_residual`. The last evaluation is kept, keyed by
+        every input (the flow's ``F_x`` and the fluid load's ``S_x`` share it)."""
+        rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(),
+               params, self.density, self.symmetric, self.settings, self.body_force)
+        if self._shape_kept is not None and self._shape_kept[0] == key:
+            return self._shape_kept[1]
         Xe = self.corners(x)
-        E = Xe.shape[0]
-        cols = element_dofs(self.mesh.quads, 2)                 # (E, 8) coordinate dofs
-        vals = np.empty((E, 22, 8))
-        for j in range(8):
-            Xc = Xe.astype(complex)
-            Xc[:, j // 2, j % 2] += 1j * COMPLEX_STEP
-            Rc, _ = self.element_residual(w, None, rho, jacobian=False, Xe=Xc)
-            vals[:, :, j] = Rc.imag / COMPLEX_STEP
-        rows = np.broadcast_to(self.dofs[:, :, None], vals.shape)
-        cols = np.broadcast_to(cols[:, None, :], vals.shape)
-        return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())),
-                             shape=(self.size, 2 * self.mesh.n_nodes))
+        if self.body_force is None:
+            ve, pe = self.split(w)
+            values = fluid_shape(Xe, ve, pe, self.alpha(rho, params), self.density, self.settings.viscosity,
+                                 self.symmetric)
+        else:
+            values = (self.element_residual(w, None, rho, jacobian=False, Xe=Xe, params=params)[0],
+                      corner_derivatives(lambda Xc: self.element_residual(w, None, rho, jacobian=False, Xe=Xc,
+                                                                          params=params)[0], Xe))
+        self._shape_kept = (key, values)
+        return values
 
-    def density_partial(self, w, x, rho) -> sp.csr_matrix:
-        """``F_rho`` (size x E): Brinkman friction's derivative per element density."""
+    def shape_partial(self, w, x=None, rho=None, params=None) -> sp.csr_matrix:
+        """``F_x`` (size x 2n): derivative with respect to the mesh displacement."""
+        if self._shape_pattern is None:
+            self._shape_pattern = SparsePattern(self.dofs, element_dofs(self.mesh.quads, 2),
+                                                (self.size, 2 * self.mesh.n_nodes))
+        return self._shape_pattern.assemble(self.shape_elements(w, x, rho, params)[1])
+
+    def density_vectors(self, w, x, rho, params=None) -> np.ndarray:
+        """``dF_e/drho_e`` ``(E, 22)``: the Brinkman friction's derivative per element."""
         ve, _ = self.split(w)
         rho = np.zeros(self.mesh.n_elements) if rho is None else rho
-        vals = brinkman_partial(self.corners(x), ve) * self.brinkman.derivative(rho)[:, None]
+        return brinkman_partial(self.corners(x), ve) * self.brinkman(params).derivative(rho)[:, None]
+
+    def density_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
+        """``F_rho`` (size x E)."""
+        vals = self.density_vectors(w, x, rho, params)
         E = vals.shape[0]
         return sp.csr_matrix((vals.ravel(), (self.dofs.ravel(), np.repeat(np.arange(E), 22))),
                              shape=(self.size, E))
@@ -162,38 +201,52 @@ class Flow:
         pos9[m.node9(I.ravel(), J.ravel())] = np.column_stack([I.ravel(), J.ravel()])
         return np.vstack([np.repeat(pos9, 2, axis=0), pos9[: m.n_nodes]])
 
-    def _factorize(self, A):
+    @property
+    def pressure_dofs(self) -> np.ndarray:
+        """(size,) bool: the pressure unknowns (numbered after the velocities in each block)."""
+        return np.arange(self.size) >= self.n_velocity
+
+    def factorize(self, A):
+        """The LU of a flow Jacobian (nested dissection, pressures last per block)."""
         if self._perm is None:
-            self._perm = nested_dissection(self.grid(), last=np.arange(self.size) >= self.n_velocity)
+            self._perm = nested_dissection(self.grid(), last=self.pressure_dofs)
         return DirectSolver(A, perm=self._perm)
 
-    def solve(self, x=None, rho=None, w0=None, progress=None) -> tuple[np.ndarray, FlowReport]:
+    def solve(self, x=None, rho=None, w0=None, params=None) -> tuple[np.ndarray, FlowReport]:
         """Steady flow on the mesh moved by ``x`` with densities ``rho``; raises on failure."""
+        solution = self.newton_solve(x, rho, w0, params)
+        return solution.w, solution.report
+
+    def newton_solve(self, x=None, rho=None, w0=None, params=None,
+                     solver: RecyclingSolver | None = None) -> FlowSolution:
+        """:meth:`solve` with the converged Jacobian and the solver (``solver``: one whose last
+        factorization may precondition this solve's Newton steps; a new one by default)."""
         t0 = time.perf_counter()
         report = FlowReport()
+        solver = RecyclingSolver(self.factorize) if solver is None else solver
         w = self.initial() if w0 is None else np.where(self.bc.is_fixed, self.values, w0)
         try:
-            w = self._newton(w, x, rho, self.density, report)
+            w, J = self._newton(w, x, rho, self.density, report, params, solver)
         except NumericalError as first:
             if self.density == 0.0:
                 raise
             log.info("Newton failed at full Reynolds number (%s); continuing from Stokes flow", first)
-            w = self._newton(self.initial(), x, rho, 0.0, report)
+            w, J = self._newton(self.initial(), x, rho, 0.0, report, params, solver)
             steps = self.settings.continuation_steps
             for k in range(1, steps + 1):
                 density = self.density * k / steps
                 report.continuation.append(density)
-                w = self._newton(w, x, rho, density, report)
+                w, J = self._newton(w, x, rho, density, report, params, solver)
         report.converged = True
         report.wall_time_s = time.perf_counter() - t0
-        return w, report
+        return FlowSolution(w, report, J, solver)
 
     def residual_scale(self, x, density) -> float:
         """``|F|`` of the all-fluid state holding only the boundary values: the force scale the
         Newton tolerance is relative to (per mesh position and density; independent of the
         design, so a design's solve never depends on which design came first)."""
         key = (None if x is None else np.asarray(x).tobytes(), density)
-        if getattr(self, "_scale", (None,))[0] != key:
+        if getattr(self, "_scale", (None,))[0] != key:          # alpha(None) = alpha_min: q-free
             r = np.linalg.norm(self.bc.homogenize(self.residual(self.initial(), x, None, density)))
             self._scale = (key, max(r, 1e-14 * max(1.0, abs(self.settings.inlet_velocity))))
         return self._scale[1]
@@ -207,56 +260,62 @@ class Flow:
         floor = 1e-300 + 1e-16 * size.max()
         return float(np.max(np.abs(r) / (size + floor)))
 
-    def _newton(self, w, x, rho, density, report: FlowReport) -> np.ndarray:
+    def _newton(self, w, x, rho, density, report: FlowReport, params, solver):
         """Newton with inexact (Eisenstat-Walker) solves and a backtracking line search whose
-        accepted point's Jacobian is the next iteration's. Converged when ``|F|`` is below
+        accepted full step's Jacobian is the next iteration's. Converged when ``|F|`` is below
         ``newton_tol`` times the force scale, or when the componentwise backward error has
-        reached round-off (``ROUND_OFF``)."""
+        reached round-off (``ROUND_OFF``). Returns ``w`` and the Jacobian at ``w``."""
         s = self.settings
         scale = self.residual_scale(x, density)
         history: list[float] = []
         report.residual_history.append(history)
-        J, R, _ = self.jacobian(w, x, rho, density)
+        J, R, _ = self.jacobian(w, x, rho, density, params)
         for it in range(s.newton_max_iter + 1):
             r = self.bc.homogenize(R)
             norm = float(np.linalg.norm(r))
             history.append(norm)
+            log.info("flow Newton %d (density %.4g): |R| = %.3e, target %.3e", it, density, norm,
+                     s.newton_tol * scale)
             if not np.isfinite(norm):
                 raise NumericalError("flow solve: non-finite residual", {"history": history})
             target = s.newton_tol * scale
             if norm <= target or self.backward_error(J, w, r) <= ROUND_OFF:
-                self._last = (w, J)
-                return w
+                return w, J
             if it == s.newton_max_iter:
                 break
-            eta = 0.1 if len(history) < 2 else min(0.1, 0.9 * (history[-1] / history[-2]) ** 2)
-            dw = self.solver.solve(J, -r, rtol=max(eta, 0.1 * target / norm))
+            dw = solver.solve(J, -r, rtol=forcing_term(history, target))
             dw[self.bc.fixed] = 0.0
             report.newton_iterations += 1
-            for alpha in 0.5 ** np.arange(8):
-                trial = w + alpha * dw
-                if alpha == 1.0:
-                    J_t, R_t, _ = self.jacobian(trial, x, rho, density)
+
+            def trial(alpha):
+                w_t = w + alpha * dw
+                if alpha == 1.0:                        # keep the Jacobian: next iteration's
+                    J_t, R_t, _ = self.jacobian(w_t, x, rho, density, params)
                 else:
-                    J_t, R_t = None, self.residual(trial, x, rho, density)
-                r_t = np.linalg.norm(self.bc.homogenize(R_t))
-                if np.isfinite(r_t) and r_t < (1 - 1e-4 * alpha) * norm:
-                    break
-            else:
+                    J_t, R_t = None, self.residual(w_t, x, rho, density, params)
+                return float(np.linalg.norm(self.bc.homogenize(R_t))), (w_t, J_t, R_t)
+            found = backtracking(norm, trial)
+            if found is None:
                 raise NumericalError("flow solve: line search found no decrease",
                                      {"history": history, "density": density})
-            w = trial
-            J, R = (J_t, R_t) if J_t is not None else self.jacobian(w, x, rho, density)[:2]
+            w, J, R = found[1]
+            if J is None:
+                J, R = self.jacobian(w, x, rho, density, params)[:2]
         raise NumericalError(f"flow solve: no convergence in {s.newton_max_iter} Newton iterations",
                              {"history": history, "density": density})
 
     # ---- figures -------------------------------------------------------------------
-    def figures(self, w, x=None, rho=None) -> dict:
-        """Pressure drop [Pa] and dissipated power [W/m] of a flow state."""
+    def figures(self, w, x=None, rho=None, params=None) -> dict:
+        """Pressure drop [Pa] and dissipated power [W/m] of a flow state.
+
+        ``dissipated_power = int 2 mu eps(v) : eps(v) + alpha |v|^2`` is the power the
+        flow loses to viscosity and to Brinkman friction (the symmetric strain rate,
+        whatever the residual's form).
+        """
         ve, _ = self.split(w)
         grad, wdet, v, L = velocity_fields(self.corners(x), ve)
         eps = 0.5 * (L + np.swapaxes(L, -1, -2))
-        alpha = self.alpha(rho)
+        alpha = self.alpha(rho, params)
         viscous = float(np.sum(2 * self.settings.viscosity * np.einsum("egij,egij->eg", eps, eps) * wdet))
         friction = float(np.sum(alpha[:, None] * np.einsum("egi,egi->eg", v, v) * wdet))
         out = {"dissipated_power": viscous + friction, "viscous_dissipation": viscous,

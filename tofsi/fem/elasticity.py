@@ -52,13 +52,3 @@ def element_stiffness(Xe: np.ndarray, lam: float, mu: float, scale=1.0, chi: flo
     K = K.reshape(-1, 8, 8)
     return K * np.asarray(scale)[..., None, None] if np.ndim(scale) else K * scale
 
-
-def strain_matrix(grad: np.ndarray) -> np.ndarray:
-    """``B`` ``(..., 3, 2k)``: Voigt strains ``[e_xx, e_yy, 2 e_xy] = B u`` from gradients ``(..., k, 2)``."""
-    k = grad.shape[-2]
-    B = np.zeros(grad.shape[:-2] + (3, 2 * k), dtype=grad.dtype)
-    B[..., 0, 0::2] = grad[..., 0]
-    B[..., 1, 1::2] = grad[..., 1]
-    B[..., 2, 0::2] = grad[..., 1]
-    B[..., 2, 1::2] = grad[..., 0]
-    return B

@@ -1,0 +1,149 @@
+"""Mesh motion: a scene's mover between the structure and the fluid mesh.
+
+The one entry point for moving a scene's fluid mesh, used by the coupled
+model (the field ``x`` of :mod:`tofsi.physics.fields`) and by the mesh-motion
+studies (:mod:`tofsi.motion`). Two forms, chosen by the scene:
+
+* explicit interface (scenes without a design region): the non-solid quads
+  move; every solid node follows the structure (``x = u``) and every channel
+  boundary node stays (``x = 0``);
+* density-blended (design scenes): every quad moves, the channel boundary
+  stays, and an interior node ``i`` blends mover and structure with the solid
+  indicator ``s_i = 1 - prod_{e at i} (1 - rho_e)`` (see :mod:`movers.blend`):
+  ``s_i = 1`` as soon as one neighbouring element is solid, 0 when all are
+  fluid, smooth in between, so the form reduces to the explicit one for 0/1
+  densities and is differentiable in rho.
+
+Layered stiffening factors (``mover.layers``) apply to the element layers
+counted from the interface of the fixed solid, or in design scenes, with
+``mover.layers_from = "density"`` (the default), to the layers grown from the
+densities themselves (:class:`~tofsi.physics.indicators.DensityLayers`): the
+stiffening follows the evolving design and is differentiable in rho.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+import movers
+from movers.base import MotionProblem, MoveResult
+from tofsi.layers import element_layers, stiffening_field
+from tofsi.mesh import SOLID
+from tofsi.physics.indicators import DensityLayers, solid_indicator
+
+__all__ = ["MeshMotion", "solid_indicator"]
+
+LAYERS_SHOWN = 10          # element layers counted (and written to outputs) at least
+
+
+class MeshMotion:
+    """A scene's mover applied to its mesh, with the maps to and from the other fields."""
+
+    def __init__(self, mesh, scene):
+        self.mesh = mesh
+        self.mover = movers.mover_class(scene.mover.name)(scene.mover.options)
+        self.blended = scene.has_design
+        boundary = mesh.boundary_nodes
+        solid = mesh.region == SOLID
+        self.layer = element_layers(mesh.incidence, mesh.interface_nodes, ~solid,
+                                    n_layers=max(len(scene.mover.layers), LAYERS_SHOWN))
+        factors = stiffening_field(self.layer, scene.mover.layers)
+        self.density_layers = None
+        if self.blended and scene.mover.layers and scene.mover.layers_from == "density":
+            self.density_layers = DensityLayers(mesh.quads, mesh.n_nodes, scene.mover.layers)
+            factors = np.ones(mesh.n_elements)             # the layers come with the densities
+        if self.blended:
+            moving, fixed = np.arange(mesh.n_elements), boundary
+            self.follows = np.setdiff1d(np.arange(mesh.n_nodes), boundary)
+        else:
+            moving, fixed = np.flatnonzero(~solid), np.union1d(mesh.nodes_of(SOLID), boundary)
+            self.follows = np.setdiff1d(mesh.nodes_of(SOLID), boundary)
+        self.moving = moving
+        self.base = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
+
+    @property
+    def path_dependent(self) -> bool:
+        """True when the mover has no residual form (increments on the updated mesh)."""
+        return self.mover.path_dependent
+
+    @property
+    def fixed_dofs(self) -> np.ndarray:
+        """Dofs of the nodes whose motion is prescribed (boundary, and solid in the explicit form)."""
+        return self.base.fixed_dofs
+
+    # ---- maps between fields ------------------------------------------------------
+    def problem(self, rho=None) -> MotionProblem:
+        """The mover's problem for densities ``rho`` (blended form) or the fixed regions."""
+        if not self.blended:
+            return self.base
+        s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
+        if self.density_layers is None:
+            return self.base.with_data(blend=s)
+        return self.base.with_data(blend=s, stiffening=self.density_layers.factors(rho)[self.moving])
+
+    def target(self, u: np.ndarray) -> np.ndarray:
+        """The motion the mover is given ``(n, 2)``: the structure's where nodes follow it, else 0."""
+        t = np.zeros((self.mesh.n_nodes, 2))
+        t[self.follows] = np.asarray(u).reshape(-1, 2)[self.follows]
+        return t
+
+    def target_transpose(self, t_bar: np.ndarray) -> np.ndarray:
+        """Adjoint of :meth:`target`: ``(2n,)`` on ``u``."""
+        u_bar = np.zeros((self.mesh.n_nodes, 2))
+        u_bar[self.follows] = np.asarray(t_bar).reshape(-1, 2)[self.follows]
+        return u_bar.ravel()
+
+    def density_transpose(self, rho, s_bar: np.ndarray, f_bar: np.ndarray | None = None) -> np.ndarray:
+        """Chain the blend's adjoint ``s_bar`` (n,) and the stiffening factors' ``f_bar`` (per
+        moving quad) to ``rho_bar (E,)`` (fixed-solid layers do not depend on rho)."""
+        if not self.blended:
+            return np.zeros(self.mesh.n_elements)
+        _, ds = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
+        rho_bar = ds.T @ s_bar
+        if self.density_layers is not None and f_bar is not None:
+            full = np.zeros(self.mesh.n_elements)
+            full[self.moving] = f_bar
+            rho_bar = rho_bar + self.density_layers.transpose(rho, full)
+        return rho_bar
+
+    # ---- moving and derivatives ------------------------------------------------------
+    def move(self, u, rho=None, progress=None) -> MoveResult:
+        """Move the mesh with the structure's displacement ``u``: the mover's result, whose
+        ``displacement`` ``(n, 2)`` is the mesh displacement ``x``."""
+        problem = self.problem(rho)
+        result = self.mover.move(problem, self.target(u), progress)
+        result.problem = problem
+        return result
+
+    def vjp(self, result: MoveResult, x_bar, rho=None):
+        """``(u_bar (2n,), rho_bar (E,))`` for ``x_bar`` on the mesh displacement."""
+        t_bar, f_bar, s_bar = self.mover.vjp(result.problem, result, x_bar)
+        return self.target_transpose(t_bar), self.density_transpose(rho, s_bar, f_bar)
+
+    def residual(self, x, u, rho=None):
+        """``D (2n,)`` and ``D_x`` (true Jacobian) for residual movers."""
+        return self.mover.residual(self.problem(rho), x, self.target(u))
+
+    def structure_partial(self, rho=None) -> sp.csr_matrix:
+        """``D_u`` (2n x 2n): ``-(P_p + S_c)`` restricted to the nodes that follow the structure."""
+        problem = self.problem(rho)
+        diag = np.zeros(2 * self.mesh.n_nodes)
+        follow_dofs = np.ravel(2 * self.follows[:, None] + np.arange(2))
+        fixed = problem.bc.is_fixed
+        diag[follow_dofs[fixed[follow_dofs]]] = -1.0
+        blend = self.mover.blend(problem)
+        if blend is not None:
+            free = follow_dofs[~fixed[follow_dofs]]
+            diag[free] = -blend.diag[free]
+        return sp.diags(diag).tocsr()
+
+    def partials_transpose(self, x, u, rho, lam):
+        """``lam^T D_u`` (2n,) and ``lam^T D_rho`` (E,) for residual movers (no solve)."""
+        t_bar, f_bar, s_bar = self.mover.residual_partials(self.problem(rho), x, self.target(u), lam)
+        return self.target_transpose(t_bar), self.density_transpose(rho, s_bar, f_bar)
+
+    def transposed_solve(self, x, rho, rhs, solver=None) -> np.ndarray:
+        """``D_x^-T rhs`` at ``x`` (residual movers); ``solver`` from the forward move."""
+        lam, lam_p = self.mover.transposed_solve(self.problem(rho), x, rhs, solver)
+        return lam + lam_p
