@@ -32,13 +32,11 @@ import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult, element_apply, quality_record
 from movers.incremental import system
-from movers.yeoh_material import stress, stress_and_tangent
+from movers.yeoh_kernel import YeohKernel
 from tofsi import quality
 from tofsi.config import option
 from tofsi.errors import NumericalError
-from tofsi.fem.assembly import assemble_vector, weighted_gram
-from tofsi.fem.geometry import physical_gradients
-from tofsi.fem.quadrature import gauss_square
+from tofsi.fem.assembly import assemble_vector
 from tofsi.iteration import forcing_term
 from tofsi.linalg import RecyclingSolver
 
@@ -60,52 +58,6 @@ class YeohParams:
     max_cutbacks: int = option(40, ge=0, le=10_000, doc="increment cuts before failing")
     linear_solver: str = option("direct", choices=("direct", "amg"), doc="sparse LU or AMG-CG")
     linear_tol: float = option(1e-10, gt=0, lt=1e-3, doc="relative tolerance of recycled iterative solves")
-
-
-class YeohKernel:
-    """Batched residual and tangent of the Yeoh mesh on a fixed reference mesh."""
-
-    def __init__(self, problem: MotionProblem, params: YeohParams, stiffening=None):
-        points, weights = gauss_square(2)
-        Xe = problem.points[problem.quads]
-        self.grad0, det0 = physical_gradients(Xe, 1, points)      # (E, G, 4, 2), (E, G)
-        self.wdet = det0 * weights
-        self.problem, self.p = problem, params
-        factors = problem.stiffening if stiffening is None else stiffening
-        self.A20 = (params.A20 * factors)[:, None]                 # (E, 1)
-
-    def deformation_gradient(self, x: np.ndarray) -> np.ndarray:
-        """``F = I + sum_a u_a (x) grad0 N_a`` ``(E, G, 2, 2)``."""
-        ue = x.reshape(-1, 2)[self.problem.quads]                   # (E, 4, 2)
-        return np.eye(2) + np.matmul(ue.transpose(0, 2, 1)[:, None], self.grad0)
-
-    def evaluate(self, x: np.ndarray, tangent: bool = True):
-        """Element residuals ``(E, 8)``, tangents ``(E, 8, 8)`` (or None), min det F ``(E,)``."""
-        p = self.p
-        F = self.deformation_gradient(x)
-        detF = F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
-        if np.any(detF <= 0.0):                  # inverted: the energy is undefined there
-            return None, None, detF.min(axis=1)
-        if not tangent:
-            S = stress(F, p.A10, self.A20, p.A30, p.kappa)
-        else:
-            S, D = stress_and_tangent(F, p.A10, self.A20, p.A30, p.kappa)
-        P = np.matmul(F, S)                                         # first Piola-Kirchhoff
-        Re = (np.matmul(self.grad0, np.swapaxes(P, -1, -2)) * self.wdet[..., None, None]).sum(axis=1)
-        Re = Re.reshape(-1, 8)
-        if not tangent:
-            return Re, None, detF.min(axis=1)
-        g = self.grad0
-        BL = np.empty(g.shape[:2] + (3, 8), dtype=F.dtype)
-        for i in range(2):                  # dofs 2a + i
-            BL[..., 0, i::2] = F[..., i, 0, None] * g[..., 0]
-            BL[..., 1, i::2] = F[..., i, 1, None] * g[..., 1]
-            BL[..., 2, i::2] = F[..., i, 0, None] * g[..., 1] + F[..., i, 1, None] * g[..., 0]
-        Ke = weighted_gram(BL, D @ BL, self.wdet)
-        Gab = weighted_gram(g.transpose(0, 1, 3, 2), S @ g.transpose(0, 1, 3, 2), self.wdet)
-        Ke[:, 0::2, 0::2] += Gab
-        Ke[:, 1::2, 1::2] += Gab
-        return Re, Ke, detF.min(axis=1)
 
 
 class Equations:
