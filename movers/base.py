@@ -154,6 +154,7 @@ class MoveReport:
     factorizations: int = 0
     krylov_iterations: int = 0
     cutbacks: int = 0
+    warm_start: bool = False                                # started from a given nearby displacement
     residual_history: list = field(default_factory=list)   # per increment: list of norms
     quality: list = field(default_factory=list)            # per increment: summary dict
     wall_time_s: float = 0.0
@@ -198,6 +199,7 @@ class Mover(ABC):
 
     name: ClassVar[str]
     Params: ClassVar[type]
+    warm_starts: ClassVar[bool] = False     # move() takes ``initial``, a nearby displacement to start from
 
     def __init__(self, params):
         self.params = params

@@ -50,7 +50,7 @@ class YeohParams:
     A20: float = option(1e3, ge=0, doc="second Yeoh coefficient [Pa] (stiffened per layer)")
     A30: float = option(0.0, ge=0, doc="third Yeoh coefficient [Pa]")
     kappa: float = option(1.0, gt=0, doc="bulk coefficient [Pa]")
-    increments: int = option(2, ge=1, le=100_000, doc="initial number of load increments "
+    increments: int = option(1, ge=1, le=100_000, doc="initial number of load increments "
                              "(the result does not depend on it; more make Newton easier)")
     newton_tol: float = option(1e-10, gt=0, lt=1, doc="|R_free| relative to the force scale")
     max_newton: int = option(25, ge=1, le=1000, doc="Newton iterations per increment")
@@ -88,6 +88,12 @@ class Equations:
         r = element_apply(Ke, d, self.dofs)
         return self.bc.homogenize(r if self.blend is None else self.blend.weighted(r))
 
+    def nearer(self, x0: np.ndarray) -> bool:
+        """True when ``x0`` is nearer than zero to the full motion on the dofs the motion
+        prescribes (the fixed ones, and the blended ones)."""
+        carried = self.bc.is_fixed if self.blend is None else self.bc.is_fixed | (self.blend.diag > 0)
+        return bool(np.linalg.norm((self.target - x0)[carried]) < np.linalg.norm(self.target[carried]))
+
 
 class YeohMover(Mover):
     """Yeoh hyperelastic mesh, Newton-Raphson with load stepping and cutback."""
@@ -103,20 +109,55 @@ class YeohMover(Mover):
                                  {"min_det_F": float(det.min())})
         return Re, Ke
 
-    def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
+    warm_starts = True
+
+    def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None,
+             initial: np.ndarray | None = None) -> MoveResult:
+        """Displacement with the fixed nodes at ``prescribed``; ``initial`` ``(n, 2)``: a mesh
+        displacement for a nearby motion (e.g. the previous design's) to start from.
+
+        From ``initial`` one Newton solve goes straight to the full motion (no load
+        steps) when its prescribed values are nearer to the target than zero is;
+        when that fails, and without ``initial``, the motion is applied in load
+        steps from zero. The result does not depend on ``initial`` (to ``newton_tol``).
+        """
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
-        p = self.params
         blend = self.blend(problem)
-        eqs = Equations(YeohKernel(problem, p), blend, target)
+        eqs = Equations(YeohKernel(problem, self.params), blend, target)
         solver = self._solver(problem)
-        x = np.zeros_like(target)
+        x = None
+        if initial is not None:
+            x = self._warm_start(eqs, solver, np.asarray(initial, dtype=float).reshape(-1), report, progress)
+        if x is None:
+            x = self._load_steps(eqs, solver, report, progress, t0)
+        return self._finish(report, problem, x, t0, solver, blend=blend, target=target)
+
+    def _warm_start(self, eqs: Equations, solver, x0: np.ndarray, report: MoveReport, progress):
+        """Newton from ``x0`` to the full load; None when ``x0`` is not nearer than zero or fails."""
+        if x0.shape != eqs.target.shape or not np.all(np.isfinite(x0)) or not eqs.nearer(x0):
+            return None
+        Re, Ke, det_min = eqs.kernel.evaluate(x0)
+        if Re is None or not self._valid(eqs.kernel, x0, det_min):
+            return None
+        x, _, history, why = self._increment(eqs, solver, x0, (Re, Ke), 1.0, report)
+        report.residual_history.append(history)
+        if x is None:
+            log.info("yeoh: the warm start failed (%s); load steps from zero", why)
+            return None
+        report.warm_start = True
+        self._record(report, eqs.kernel.problem, x, 1.0, 1, progress)
+        return x
+
+    def _load_steps(self, eqs: Equations, solver, report: MoveReport, progress, t0: float) -> np.ndarray:
+        """The motion applied in load steps from zero, each cut in half when it fails."""
+        p, problem = self.params, eqs.kernel.problem
+        x = np.zeros_like(eqs.target)
         state = eqs.kernel.evaluate(x)[:2]              # element residuals and tangents at x
         load, step = 0.0, 1.0 / p.increments
         while load < 1.0 - 1e-14:
             step = min(step, 1.0 - load)
-            x_new, state_new, history, why = self._increment(eqs, solver, x, state, load, load + step,
-                                                             report)
+            x_new, state_new, history, why = self._increment(eqs, solver, x, state, load + step, report)
             report.residual_history.append(history)
             if x_new is None:
                 report.cutbacks += 1
@@ -127,14 +168,18 @@ class YeohMover(Mover):
                                f"{report.cutbacks} cutbacks (last: {why})", t0)
                 continue
             x, state, load = x_new, state_new, load + step
-            report.increments += 1
-            record = quality_record(problem, x.reshape(-1, 2), load)
-            report.quality.append(record)
-            if progress:
-                progress(report.increments, p.increments, record)
+            self._record(report, problem, x, load, p.increments, progress)
             if len(history) <= 4:                # easy increment: take a longer next one
                 step *= 1.5
-        return self._finish(report, problem, x, t0, solver, blend=blend, target=target)
+        return x
+
+    @staticmethod
+    def _record(report: MoveReport, problem: MotionProblem, x, load: float, planned: int, progress) -> None:
+        report.increments += 1
+        record = quality_record(problem, x.reshape(-1, 2), load)
+        report.quality.append(record)
+        if progress:
+            progress(report.increments, planned, record)
 
     def _line_search(self, eqs: Equations, x, dx, r, norm, load):
         """Step length along ``dx``: returns (x_new, Re, Ke or None) or None.
@@ -178,38 +223,44 @@ class YeohMover(Mover):
         P = kernel.problem
         return not np.any(quality.inverted(P.points + x.reshape(-1, 2), P.quads))
 
+    def _tolerance(self, eqs: Equations, Re: np.ndarray, scale: float) -> float:
+        """Newton's target for ``|D_free|``: ``newton_tol`` relative to the larger of ``scale``
+        and the internal forces (the reactions, and the blended rows' balancing forces),
+        never below round-off."""
+        forces = np.linalg.norm(assemble_vector(eqs.dofs, Re, eqs.target.size))
+        return max(self.params.newton_tol * max(scale, forces), ROUND_OFF * np.sqrt(eqs.target.size) * forces)
+
     def _increment(self, eqs: Equations, solver: RecyclingSolver, x0: np.ndarray, state0,
-                   load0: float, load1: float, report: MoveReport):
-        """Newton solve from the converged ``x0`` (element residuals and tangents
-        ``state0``) at ``load0`` to ``load1``; returns (x or None, its (Re, Ke),
-        |D_free| history, reason)."""
+                   load: float, report: MoveReport):
+        """Newton solve of the equations at ``load`` from ``x0`` (element residuals and
+        tangents ``state0``), starting with the tangent predictor of the step of the
+        fixed dofs to ``load u``; returns (x or None, its (Re, Ke), |D_free| history, reason)."""
         p, bc = self.params, eqs.bc
         Re, Ke = state0
-        boundary_step = (load1 - load0) * eqs.target
+        boundary_step = load * eqs.target - x0             # used on the fixed dofs only
         jump = eqs.jump(Ke, boundary_step)
-        r0 = eqs.residual(Re, x0, load1)
+        r0 = eqs.residual(Re, x0, load)
         rhs = -(r0 + jump)
         rhs[bc.fixed] = boundary_step[bc.fixed]
-        delta = solver.solve(eqs.matrix(Ke), rhs, rtol=1e-3)   # tangent predictor (loose)
-        delta[bc.fixed] = boundary_step[bc.fixed]
-        x = x0 + delta
+        x = x0 + solver.solve(eqs.matrix(Ke), rhs, rtol=1e-3)   # tangent predictor (loose)
+        x[bc.fixed] = load * eqs.target[bc.fixed]             # exactly
         report.linear_solves += 1
         R_fixed = assemble_vector(eqs.dofs, Re, x0.size)[bc.fixed]
         scale = max(np.linalg.norm(jump), np.linalg.norm(r0), np.linalg.norm(R_fixed), 1e-300)
         history: list[float] = []
+        if not np.any(boundary_step[bc.fixed]) and np.linalg.norm(r0) <= self._tolerance(eqs, Re, scale):
+            return x0, state0, [float(np.linalg.norm(r0))], ""      # already there (a warm start)
         Re, Ke, det_min = eqs.kernel.evaluate(x)
         if Re is None or not self._valid(eqs.kernel, x, det_min):
             return None, None, history, "predictor inverts an element"
         for it in range(p.max_newton + 1):
-            r = eqs.residual(Re, x, load1)
+            r = eqs.residual(Re, x, load)
             norm = float(np.linalg.norm(r))
             history.append(norm)
             log.info("yeoh Newton %d: |R| = %.3e", it, norm)
             if not np.isfinite(norm):
                 return None, None, history, "non-finite residual"
-            forces = np.linalg.norm(assemble_vector(eqs.dofs, Re, x.size))   # reactions, and the
-            target = max(p.newton_tol * max(scale, forces),  # blended rows' balancing forces,
-                         ROUND_OFF * np.sqrt(x.size) * forces)  # but never below round-off
+            target = self._tolerance(eqs, Re, scale)
             if norm <= target:
                 return x, (Re, Ke), history, ""
             if it == p.max_newton:
@@ -218,7 +269,7 @@ class YeohMover(Mover):
             dx[bc.fixed] = 0.0
             report.linear_solves += 1
             report.newton_iterations += 1
-            found = self._line_search(eqs, x, dx, r, norm, load1)
+            found = self._line_search(eqs, x, dx, r, norm, load)
             if found is None:
                 return None, None, history, "line search found no decrease"
             trial, Re_t, Ke_t = found

@@ -37,6 +37,7 @@ class DirectSolver:
     """
 
     refine_tol = 1e-12
+    exact = True               # a RecyclingSolver preconditions GMRES with these factors
 
     def __init__(self, A: sp.spmatrix, coords: np.ndarray | None = None, perm: np.ndarray | None = None,
                  backend: str | None = None):
@@ -72,6 +73,12 @@ class DirectSolver:
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         return self._apply(b, "N")
+
+    def preconditioner(self, transpose: bool = False):
+        """``b -> A^-1 b`` (or ``A^-T b``) by the triangular solves alone: a fixed linear
+        operator for preconditioning another matrix (no residual check, no refinement)."""
+        trans = "T" if transpose else "N"
+        return lambda b: self.factorization.solve(b, trans)
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
         return self._apply(b, "T")

@@ -343,7 +343,7 @@ class MotionField(FieldBlock):
         return MotionLinearization(self, fields, rho, params)
 
     def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
-        result = self.motion.move(fields["u"], rho, progress)
+        result = self.motion.move(fields["u"], rho, progress, initial=guess)   # the result is guess-free
         x = result.displacement.ravel()
         values = {**fields, "x": x}
         if self.has_residual:

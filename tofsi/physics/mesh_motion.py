@@ -121,11 +121,13 @@ class MeshMotion:
         return ds.T @ s_bar
 
     # ---- moving and derivatives ------------------------------------------------------
-    def move(self, u, rho=None, progress=None) -> MoveResult:
+    def move(self, u, rho=None, progress=None, initial=None) -> MoveResult:
         """Move the mesh with the structure's displacement ``u``: the mover's result, whose
-        ``displacement`` ``(n, 2)`` is the mesh displacement ``x``."""
+        ``displacement`` ``(n, 2)`` is the mesh displacement ``x``. ``initial``: a mesh
+        displacement for a nearby motion, where the mover starts (movers that take one)."""
         problem = self.problem(rho)
-        result = self.mover.move(problem, self.target(u), progress)
+        start = {"initial": initial} if initial is not None and self.mover.warm_starts else {}
+        result = self.mover.move(problem, self.target(u), progress, **start)
         result.problem = problem
         return result
 
