@@ -52,7 +52,10 @@ def run_case(refine: float, case: str, solver: str) -> dict:
     from tofsi.linalg import make_solver, rigid_body_modes
     from tofsi.motion import motion_setup, run_move
 
+    from tofsi.threads import configure
+
     scene = tofsi.load_scene(SCENE, overrides(refine, "linear" if case == "solve" else case, solver))
+    configure(scene.solver)                  # backend and BLAS threads, as `tofsi move` sets them
     setup = motion_setup(scene)
     problem = setup.problem
     out = {"nodes": problem.n_nodes, "dofs": 2 * problem.n_nodes}

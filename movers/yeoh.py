@@ -182,40 +182,41 @@ class YeohMover(Mover):
             progress(report.increments, planned, record)
 
     def _line_search(self, eqs: Equations, x, dx, r, norm, load):
-        """Step length along ``dx``: returns (x_new, Re, Ke or None) or None.
+        """Step length along ``dx``: returns the new ``x``, or None.
 
         ``g(alpha) = dx . D(x + alpha dx)`` is the slope of the energy along the
         step (without a blend); ``g(0) = dx . r < 0``. Accept the full step when
         the slope has dropped to a tenth; otherwise try the secant root
         ``g0 / (g0 - g(1))`` (clipped to [0.1, 4]) once, then halve. An accepted
-        step must reduce ``|D|`` and invert no element.
+        step must reduce ``|D|`` and invert no element. Trials evaluate the
+        residual alone (the caller evaluates the tangent where it lands).
         """
         kernel = eqs.kernel
 
-        def trial(alpha, tangent):
+        def trial(alpha):
             xt = x + alpha * dx
-            Re_t, Ke_t, det_t = kernel.evaluate(xt, tangent)
+            Re_t, _, det_t = kernel.evaluate(xt, tangent=False)
             if Re_t is None or not self._valid(kernel, xt, det_t):
-                return xt, None, None, None, None
+                return xt, None, None
             rt = eqs.residual(Re_t, xt, load)
-            return xt, Re_t, Ke_t, float(dx @ rt), float(np.linalg.norm(rt))
+            return xt, float(dx @ rt), float(np.linalg.norm(rt))
 
         g0 = float(dx @ r)
         alphas = [1.0]
-        xt, Re_t, Ke_t, g1, n1 = trial(1.0, True)
+        xt, g1, n1 = trial(1.0)
         if g1 is not None and n1 < norm and (g0 >= 0 or abs(g1) <= 0.1 * abs(g0)):
-            return xt, Re_t, Ke_t
+            return xt
         if g1 is not None and g0 < 0 and g1 != g0:
             alphas.append(float(np.clip(g0 / (g0 - g1), 0.1, 4.0)))
         alphas += [0.5 ** k for k in range(1, 7)]
-        best = (xt, Re_t, Ke_t, n1) if g1 is not None and n1 < (1 - 1e-4) * norm else None
+        best = (xt, n1) if g1 is not None and n1 < (1 - 1e-4) * norm else None
         for alpha in alphas[1:]:
-            xa, Re_a, _, ga, na = trial(alpha, False)
-            if ga is not None and na < (1 - 1e-4 * min(alpha, 1.0)) * norm and (best is None or na < best[3]):
-                return xa, Re_a, None
+            xa, ga, na = trial(alpha)
+            if ga is not None and na < (1 - 1e-4 * min(alpha, 1.0)) * norm and (best is None or na < best[1]):
+                return xa
             if best is not None:
-                return best[:3]
-        return None if best is None else best[:3]
+                return best[0]
+        return None if best is None else best[0]
 
     def _valid(self, kernel: YeohKernel, x: np.ndarray, det_min: np.ndarray) -> bool:
         if np.any(det_min <= 0.0):
@@ -257,7 +258,7 @@ class YeohMover(Mover):
             r = eqs.residual(Re, x, load)
             norm = float(np.linalg.norm(r))
             history.append(norm)
-            log.info("yeoh Newton %d: |R| = %.3e", it, norm)
+            log.info("yeoh Newton %d: |R| = %.3e (target %.2e, scale %.2e)", it, norm, self._tolerance(eqs, Re, scale), scale)
             if not np.isfinite(norm):
                 return None, None, history, "non-finite residual"
             target = self._tolerance(eqs, Re, scale)
@@ -269,11 +270,9 @@ class YeohMover(Mover):
             dx[bc.fixed] = 0.0
             report.linear_solves += 1
             report.newton_iterations += 1
-            found = self._line_search(eqs, x, dx, r, norm, load)
-            if found is None:
+            x_new = self._line_search(eqs, x, dx, r, norm, load)
+            if x_new is None:
                 return None, None, history, "line search found no decrease"
-            trial, Re_t, Ke_t = found
-            if Ke_t is None:                                  # not the full step: tangent now
-                Re_t, Ke_t, _ = eqs.kernel.evaluate(trial)
-            x, Re, Ke = trial, Re_t, Ke_t
+            x = x_new
+            Re, Ke, _ = eqs.kernel.evaluate(x)
         return None, None, history, "unreachable"

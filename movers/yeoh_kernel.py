@@ -71,15 +71,17 @@ class YeohKernel:
         det_min = detF.reshape(E, G).min(axis=1)
         if np.any(det_min <= 0.0):                  # inverted: the energy is undefined there
             return None, None, det_min
-        Pt, At = piola_and_elasticity(F, p.A10, self.A20, p.A30, p.kappa, self.pull, self.weight, tangent)
+        # At[(i, k), m, n, (e, g)] written straight into the layout of the tangent's product
+        M = np.empty((3, E, G, 2, 2), dtype=np.result_type(F, self.A20)) if tangent else None
+        Pt, _ = piola_and_elasticity(F, p.A10, self.A20, p.A30, p.kappa, self.pull, self.weight, tangent,
+                                     out=None if M is None else M.transpose(0, 3, 4, 1, 2).reshape(3, 2, 2, E * G))
         # R[e, a, i] = sum_(g, m) dN[g, a, m] Pt[i, m, (e, g)]
         Q = Pt.reshape(2, 2, E, G).transpose(0, 2, 3, 1).reshape(2 * E, 2 * G)
         Re = (Q @ self.dN_rows).reshape(2, E, 4).transpose(1, 2, 0).reshape(E, 8)
         if not tangent:
             return Re, None, det_min
-        # K[e, (a, i), (b, k)] = sum_(g, m, n) At[i, k, m, n, (e, g)] dN[g, a, m] dN[g, b, n]
-        M = At.reshape(3, 2, 2, E, G).transpose(0, 3, 4, 1, 2).reshape(3 * E, 4 * G)
-        K00, K01, K11 = (M @ self.dN_pairs).reshape(3, E, 4, 4)
+        # K[e, (a, i), (b, k)] = sum_(g, m, n) At[(i, k), m, n, (e, g)] dN[g, a, m] dN[g, b, n]
+        K00, K01, K11 = (M.reshape(3 * E, 4 * G) @ self.dN_pairs).reshape(3, E, 4, 4)
         Ke = np.empty((E, 8, 8), dtype=K00.dtype)
         Ke[:, 0::2, 0::2] = K00
         Ke[:, 0::2, 1::2] = K01

@@ -129,15 +129,10 @@ def _pull(X, B):
     return np.einsum("iJn,mJn->imn", X, B)
 
 
-_ROWS, _COLS = [0, 0, 1], [0, 1, 1]     # the blocks (i, k) = (0, 0), (0, 1), (1, 1) of A
+BLOCKS = ((0, 0), (0, 1), (1, 1))     # the blocks (i, k) of A that are computed
 
 
-def _dyad(X, Z):
-    """``X_im Z_kn`` for the blocks ``(i, k)`` of ``_ROWS, _COLS``: ``(3, 2, 2, N)`` indexed ``[ik, m, n]``."""
-    return X[_ROWS, :, None] * Z[_COLS, None, :]
-
-
-def piola_and_elasticity(F, A10, A20, A30, kappa, pull=None, weight=None, tangent=True):
+def piola_and_elasticity(F, A10, A20, A30, kappa, pull=None, weight=None, tangent=True, out=None):
     """First Piola-Kirchhoff stress and first elasticity tensor, pulled back by ``pull``.
 
     Component-first layout: ``F`` ``(2, 2, N)`` (each component one contiguous
@@ -147,9 +142,10 @@ def piola_and_elasticity(F, A10, A20, A30, kappa, pull=None, weight=None, tangen
         Pt_im = w P_iJ B_mJ                      (2, 2, N)
         At_ikmn = w A_iJkL B_mJ B_nL             (3, 2, 2, N), or None without ``tangent``,
 
-    by the formulas of the module docstring; ``At`` holds the blocks
-    ``(i, k) = (0, 0), (0, 1), (1, 1)`` (the fourth is ``At_10mn = At_01nm``). With ``B = dxi/dX`` (the inverse
-    Jacobian of an element map) and ``w`` the quadrature weight times
+    by the formulas of the module docstring; ``At`` holds the blocks ``(i, k)`` of
+    :data:`BLOCKS` (the fourth is ``At_10mn = At_01nm``) and is written into
+    ``out`` when given (any array, or strided view, of that shape). With ``B = dxi/dX``
+    (the inverse Jacobian of an element map) and ``w`` the quadrature weight times
     ``det dX/dxi``, contracting with reference shape gradients gives the
     element's internal forces and tangent directly (:mod:`movers.yeoh_kernel`).
     Complex ``A20`` is allowed (complex step in the stiffening).
@@ -173,13 +169,24 @@ def piola_and_elasticity(F, A10, A20, A30, kappa, pull=None, weight=None, tangen
     c_x = -4.0 * W1 * a / 3.0 * w
     c_cc = (4.0 * W1 * a * I1 / 9.0 + 2.0 * kappa * (2.0 * J**2 - J)) * w
     c_s = (2.0 * W1 * a * I1 / 3.0 - 2.0 * kappa * (J**2 - J)) * w
-    ff = _dyad(Fit, Fit)
-    At = (_dyad((4.0 * W11 * w) * Y, Y) + _dyad(c_x * F, Fit) + _dyad(c_x * Fit, F)
-          + c_cc * ff + c_s * ff.transpose(0, 2, 1, 3))
-    # delta_ik (c_s C^-1 + S)_JL pulled back: C^-1 = F^-1 F^-T, S = 2 W1 a (I - I1/3 C^-1) + p C^-1
-    Cinv = np.einsum("iJn,iLn->JLn", Fit, Fit)          # pulled back with Fit already
+    # A = sum_p V_p (x) U_p + c_s F^-T_iL F^-T_kJ + delta_ik (c_s C^-1 + S)_JL with V = (Y, F, F^-T)
+    # and U = (4 W11 Y, c_x F^-T, c_x F + c_cc F^-T): the three dyads of the module docstring's formula
+    pairs = ((Y, (4.0 * W11 * w) * Y), (F, c_x * Fit), (Fit, c_x * F + c_cc * Fit))
+    crossed = c_s * Fit
+    # C^-1 = F^-1 F^-T (pulled back with Fit already), S = 2 W1 a (I - I1/3 C^-1) + p C^-1
+    Cinv = np.einsum("iJn,iLn->JLn", Fit, Fit)
     eye = np.eye(2)[:, :, None] if pull is None else np.einsum("mJn,qJn->mqn", pull, pull)
     Z = (c_s - 2.0 * W1 * a * I1 / 3.0 * w + p * w) * Cinv + (2.0 * W1 * a * w) * eye
-    At[0] += Z
-    At[2] += Z
+    At = np.empty((3, 2, 2) + J.shape, dtype=Pt.dtype) if out is None else out
+    for b, (i, k) in enumerate(BLOCKS):          # entry by entry: no (3, 2, 2, N) temporaries
+        for m, n in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            if i == k and m > n:                   # the diagonal blocks are symmetric in (m, n)
+                At[b, m, n] = At[b, n, m]
+                continue
+            acc = crossed[i, n] * Fit[k, m]
+            for V, U in pairs:
+                acc += V[i, m] * U[k, n]
+            if i == k:
+                acc += Z[m, n]
+            At[b, m, n] = acc
     return Pt, At

@@ -30,11 +30,12 @@ class RecyclingSolver:
     * iterative (an AMG hierarchy, ``exact = False``): every solve is a Krylov
       solve (CG for symmetric systems, else GMRES) preconditioned by one cycle
       of the last hierarchy. The first solve after a new hierarchy measures its
-      cost, iterations per decade of residual reduction; a later solve that
-      costs more than ``stale_factor`` times that marks the hierarchy stale
-      (the next matrix gets a new one), and a solve that would cost more than
-      ``2 stale_factor`` times is stopped and finished by a new hierarchy from
-      where it stopped.
+      cost ``c``, iterations per decade of residual reduction. A new hierarchy
+      costs about ``s = solver.setup_iterations`` iterations to build, so a
+      later solve over ``d`` decades that needed more than ``c d + s``
+      iterations marks the hierarchy stale (the next matrix gets a new one),
+      and one that would need more than ``c d + 2 s`` is stopped and finished
+      by a new hierarchy from where it stopped.
 
     The rules count iterations, not seconds, so results never depend on
     timing (bitwise reproducible runs). Solves are converged to ``rtol``
@@ -42,10 +43,9 @@ class RecyclingSolver:
     so the answers are those of the new matrix, not the old.
     """
 
-    def __init__(self, factorize, max_iter: int = 20, rtol: float = 1e-10, refresh_after: int = 6,
-                 stale_factor: float = 2.0):
+    def __init__(self, factorize, max_iter: int = 20, rtol: float = 1e-10, refresh_after: int = 6):
         self.factorize, self.max_iter, self.rtol = factorize, max_iter, rtol
-        self.refresh_after, self.stale_factor = refresh_after, stale_factor
+        self.refresh_after = refresh_after
         self.solver = None
         self.stale = False
         self.fresh_cost = None             # iterations per decade of a fresh hierarchy
@@ -100,9 +100,9 @@ class RecyclingSolver:
             x, its = self._gmres(A, b, apply, x0, goal, self.max_iter, self.max_iter)
             self.stale = its > self.refresh_after
         else:
-            decades = max(math.log10(r0 / goal), 0.5)
+            setup = self.solver.setup_iterations
             cap = (self.solver.max_iter if self.fresh_cost is None
-                   else int(2 * self.stale_factor * self.fresh_cost * decades) + 5)
+                   else int(self.fresh_cost * math.log10(r0 / goal) + 2 * setup) + 1)
             if self.solver.symmetric:
                 x, its = self._cg(A, b, apply, x0, goal, cap)
             else:
@@ -111,10 +111,10 @@ class RecyclingSolver:
         residual = float(np.linalg.norm(b - A @ x))
         ok = bool(np.all(np.isfinite(x))) and residual <= 1.01 * goal
         if not self.solver.exact and ok:
-            cost = its / max(math.log10(r0 / max(residual, 1e-300)), 0.5)
+            decades = max(math.log10(r0 / max(residual, 1e-300)), 0.1)
             if self.fresh_cost is None:
-                self.fresh_cost = cost
-            self.stale = cost > self.stale_factor * self.fresh_cost
+                self.fresh_cost = its / decades
+            self.stale = its > self.fresh_cost * decades + self.solver.setup_iterations
         log.info("%s: %d iterations, residual %.2e relative to |b|",
                  "GMRES" if self.solver.exact or not self.solver.symmetric else "CG", its, residual / bnorm)
         return x, ok
