@@ -112,26 +112,34 @@ class YeohMover(Mover):
     warm_starts = True
 
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None,
-             initial: np.ndarray | None = None) -> MoveResult:
-        """Displacement with the fixed nodes at ``prescribed``; ``initial`` ``(n, 2)``: a mesh
-        displacement for a nearby motion (e.g. the previous design's) to start from.
+             initial: np.ndarray | None = None, solver: RecyclingSolver | None = None) -> MoveResult:
+        """Displacement with the fixed nodes at ``prescribed``.
 
-        From ``initial`` one Newton solve goes straight to the full motion (no load
-        steps) when its prescribed values are nearer to the target than zero is;
-        when that fails, and without ``initial``, the motion is applied in load
-        steps from zero. The result does not depend on ``initial`` (to ``newton_tol``).
+        initial : ``(n, 2)`` a mesh displacement for a nearby motion (e.g. the
+            previous design's or coupling sweep's) to start from: one Newton solve
+            goes straight to the full motion (no load steps) when its prescribed
+            values are nearer to the target than zero is; when that fails, and
+            without ``initial``, the motion is applied in load steps from zero.
+        solver : the :class:`~tofsi.linalg.RecyclingSolver` of an earlier move of
+            the same mesh, whose factorization (or hierarchy) preconditions this
+            move's systems until it goes stale.
+        The result does not depend on either (to ``newton_tol``).
         """
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
         blend = self.blend(problem)
         eqs = Equations(YeohKernel(problem, self.params), blend, target)
-        solver = self._solver(problem)
+        solver = self._solver(problem) if solver is None else solver
+        counts = solver.factorizations, solver.krylov_iterations
         x = None
         if initial is not None:
             x = self._warm_start(eqs, solver, np.asarray(initial, dtype=float).reshape(-1), report, progress)
         if x is None:
             x = self._load_steps(eqs, solver, report, progress, t0)
-        return self._finish(report, problem, x, t0, solver, blend=blend, target=target)
+        result = self._finish(report, problem, x, t0, solver, blend=blend, target=target)
+        report.factorizations -= counts[0]               # this move's own
+        report.krylov_iterations -= counts[1]
+        return result
 
     def _warm_start(self, eqs: Equations, solver, x0: np.ndarray, report: MoveReport, progress):
         """Newton from ``x0`` to the full load; None when ``x0`` is not nearer than zero or fails."""

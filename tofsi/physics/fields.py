@@ -81,6 +81,11 @@ class FlowLinearization(_EliminatedLinearization):
             self._linearize()
         return self._residual
 
+    @property
+    def solver(self):
+        """The forward move's solver (None if there is none yet), recycled by the next move."""
+        return self._solver
+
     def _solver_for(self):
         if self._solver is None:
             self._solver = RecyclingSolver(self.flow.factorize)
@@ -295,6 +300,11 @@ class MotionLinearization(Linearization):
     def matrix(self):
         return self._at()[1]
 
+    @property
+    def solver(self):
+        """The forward move's solver (None if there is none yet), recycled by the next move."""
+        return self._solver
+
     def _solver_for(self):
         if self._solver is None:
             self._solver = RecyclingSolver(lambda A: DirectSolver(A, perm=self.motion.base.ordering))
@@ -343,7 +353,8 @@ class MotionField(FieldBlock):
         return MotionLinearization(self, fields, rho, params)
 
     def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
-        result = self.motion.move(fields["u"], rho, progress, initial=guess)   # the result is guess-free
+        recycled = previous.solver if isinstance(previous, MotionLinearization) else None
+        result = self.motion.move(fields["u"], rho, progress, initial=guess, solver=recycled)   # warm starts
         x = result.displacement.ravel()
         values = {**fields, "x": x}
         if self.has_residual:
