@@ -64,19 +64,16 @@ class RecyclingSolver:
         return self.solver is not None and not self.stale and self.solver.shape == A.shape
 
     def _gmres(self, A, b, apply, x0, goal: float, max_iter: int, restart: int):
-        """Right-preconditioned GMRES: minimizes the true residual ``|b - A x|``; (x, iterations)."""
+        """Right-preconditioned (flexible) GMRES: minimizes the true residual ``|b - A x|`` and
+        keeps the preconditioned basis, so the update needs no extra preconditioner
+        application; (x, iterations)."""
         n = A.shape[0]
-        dtype = np.result_type(A.dtype, b.dtype)
-        r0 = b if x0 is None else b - A @ x0
-        AM = spla.LinearOperator((n, n), matvec=lambda v: A @ apply(v), dtype=dtype)
-        count = [0]
-
-        def tick(_):
-            count[0] += 1
-        y, _ = spla.gmres(AM, r0, rtol=0.0, atol=goal, restart=restart, maxiter=max(1, -(-max_iter // restart)),
-                          callback=tick, callback_type="pr_norm")
-        x = apply(y) if x0 is None else x0 + apply(y)
-        return x, count[0]
+        M = spla.LinearOperator((n, n), matvec=apply, dtype=np.result_type(A.dtype, b.dtype))
+        residuals: list[float] = []
+        bnorm = float(np.linalg.norm(b))
+        x, _ = pyamg.krylov.fgmres(A, b, x0=x0, tol=goal / bnorm, restart=min(restart, max_iter),
+                                   maxiter=max(1, -(-max_iter // restart)), M=M, residuals=residuals)
+        return x, len(residuals) - 1
 
     def _cg(self, A, b, apply, x0, goal: float, max_iter: int):
         """Preconditioned CG (symmetric positive definite ``A`` and preconditioner); (x, iterations)."""
@@ -132,7 +129,7 @@ class RecyclingSolver:
             guess = x if np.all(np.isfinite(x)) else guess
         self.refresh(A)
         if self.solver.exact:
-            return self.solver.solve(b)
+            return self.solver.solve(b) if rtol is None else self.solver.solve(b, max(rtol, self.rtol))
         x, ok = self._krylov(A, b, guess, rtol)
         if not ok:
             raise NumericalError("AMG-preconditioned Krylov solve did not converge",
