@@ -194,7 +194,10 @@ class Mover(ABC):
     true Jacobian, the residual's partial derivatives and the
     implicit-function vector-Jacobian product. A path-dependent mover
     (increments on the updated mesh) writes :meth:`move`, :meth:`vjp` and
-    :meth:`reference_matrices` instead.
+    :meth:`reference_matrices` instead. A mover that sets ``warm_starts``
+    takes ``initial`` (a nearby displacement to start from) and ``solver`` (an
+    earlier move's solver to recycle) in :meth:`move`; its result must not
+    depend on them beyond its own tolerance.
     """
 
     name: ClassVar[str]

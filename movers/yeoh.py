@@ -1,4 +1,4 @@
-"""Yeoh hyperelastic mover: total Lagrangian, Newton with load increments.
+"""Yeoh hyperelastic mover: total Lagrangian, Newton from one load step or a nearby solution.
 
 Unknown: the mesh displacement ``x`` (2n). Residual (internal forces of the
 reference mesh, 2x2 Gauss points):
@@ -6,21 +6,28 @@ reference mesh, 2x2 Gauss points):
     R_a,i(x) = sum_g w_g det J0_g P_iJ dN_a/dX_J,   P = F S,   F = I + grad0 x,
 
 with ``S`` from :mod:`movers.yeoh_material` (``A20`` times the quad's
-stiffening factor). The tangent is the consistent one,
-``K = sum_g w det J0 (B_L^T D B_L + grad0 N^T S grad0 N (x) I)``.
+stiffening factor). The tangent is the consistent one, ``dR/dx`` through the
+first elasticity tensor ``A = dP/dF``; residual and tangent come from one
+pass of :class:`movers.yeoh_kernel.YeohKernel`.
 
 The prescribed motion is applied as ``lambda u`` with ``lambda`` stepping from
-0 to 1. Each increment starts with a tangent predictor (the boundary step and
-the free nodes' linear response), then Newton corrections with a
+0 to 1, in one step unless ``increments`` says otherwise. Each step starts
+with a tangent predictor (the boundary step and the free nodes' linear
+response), then Newton corrections with a
 line search on the energy's slope along the step, ``g(alpha) = dx . R(x + alpha dx)``
 (Crisfield's secant search: the step may be shortened or, when the energy is
 nearly quartic as with a large A20, extended up to 4x), falling back to
 halving; every trial refuses an element whose ``det F`` or corner Jacobian
-is not positive, and an accepted step must reduce ``|R_free|``. An increment that fails
+is not positive, and an accepted step must reduce ``|R_free|``. A step that fails
 (inversion, no decrease, iteration limit) is cut in half; the mover stops
-with a diagnostic when the increment falls below ``min_increment`` or after
-``max_cutbacks`` cuts. Tangent systems are solved by a
-:class:`~tofsi.linalg.RecyclingSolver` (factorize rarely, GMRES in between).
+with a diagnostic when the step falls below ``min_increment`` or after
+``max_cutbacks`` cuts. A move given ``initial``, the solution of a nearby
+motion (the previous design's, or the previous coupling sweep's), makes one
+step from there straight to the full motion, and falls back to load steps
+from zero when that fails. Tangent systems are solved by a
+:class:`~tofsi.linalg.RecyclingSolver` (factorize, or build an AMG
+hierarchy, rarely; precondition the Krylov solves of the tangents in between),
+which a move may inherit from an earlier one (``solver``).
 """
 
 from __future__ import annotations

@@ -83,18 +83,6 @@ def _sym(v):
     return out
 
 
-def stress(F, A10, A20, A30, kappa):
-    """Second Piola-Kirchhoff stress ``S`` (..., 2, 2) alone (no tangent)."""
-    _, Cinv, I1, I3 = invariants(F)
-    a = 1.0 / np.cbrt(I3)
-    J = np.sqrt(I3)
-    t = I1 * a - 3.0
-    W1 = A10 + 2.0 * A20 * t + 3.0 * A30 * t**2
-    eye = np.eye(2)
-    return (2.0 * W1 * a)[..., None, None] * (eye - (I1 / 3.0)[..., None, None] * Cinv) \
-        + (2.0 * kappa * (J - 1.0) * J)[..., None, None] * Cinv
-
-
 def stress_and_tangent(F, A10, A20, A30, kappa):
     """Second Piola-Kirchhoff stress ``S`` (..., 2, 2) and Voigt tangent ``D`` (..., 3, 3).
 
@@ -102,6 +90,8 @@ def stress_and_tangent(F, A10, A20, A30, kappa):
     The tangent is the formula of the module docstring with the coefficients
     of each tensor product collected:
     ``D = 4 W11 dJ1 (x) dJ1 - (4 W1 a / 3)(I (x) C^-1 + C^-1 (x) I) + c1 C^-1 (x) C^-1 + c2 Csym``.
+    The material form in the reference configuration; the mover's kernel uses its
+    push-forward :func:`piola_and_elasticity` (the two are tested against each other).
     """
     C, Cinv, I1, I3 = invariants(F)
     a = 1.0 / np.cbrt(I3)
