@@ -130,7 +130,7 @@ def quantity(model, state):
 
 
 CASES = {"one-way": [],
-         "two-way partitioned": ["effects.coupling=two-way", "mover.name=yeoh"],
+         "two-way partitioned": ["effects.coupling=two-way", "mover.name=yeoh", "coupled.method=partitioned"],
          "two-way monolithic": ["effects.coupling=two-way", "mover.name=yeoh", "coupled.method=monolithic"]}
 
 

@@ -16,7 +16,8 @@ BLOCKS = re.findall(r"^```(\w+)\n(.*?)^```", README, re.S | re.M)
 SMALL = {"foil_in_channel": ["mesh.h_min=0.05", "mesh.h_max=0.1"],
          "beam_in_channel_optimization": ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.15",
                                           "optimizer.max_iter=4", "design.stage_iterations=2"]}
-EXAMPLE_ARGS = {"optimize_beam_in_channel.py": [], "compare_mesh_motion.py": [],
+EXAMPLE_ARGS = {"optimize_beam_in_channel.py": [], "optimize_fsi.py": [], "compare_movers.py": [],
+                "compare_mesh_motion.py": [],
                 "move_foil.py": ["rotation"], "mesh_motion_study.py": ["all", "--jobs", "2"]}
 
 

@@ -9,7 +9,6 @@ import pytest
 from conftest import scene_path
 
 OPT = str(scene_path("beam_in_channel_optimization"))
-FSI = str(scene_path("beam_in_channel_optimization_fsi"))
 TINY = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.15", "design.stage_iterations=2",
         "optimizer.max_iter=11"]             # stages 0-3 two iterations each, the last three
 
@@ -77,14 +76,3 @@ def test_design_option_is_design_initial(cli, optimized, tmp_path):
     record = json.loads((tmp_path / "a" / "run.json").read_text())
     assert f'initial = "{design}"' in record["scene"]
 
-
-@pytest.mark.parametrize("command", ["solve", "optimize"])
-def test_the_two_way_scene_as_shipped_fails_in_one_line_saying_what_it_needs(cli, command, tmp_path):
-    """beam_in_channel_optimization_fsi starts from a saved design (its comments say so); without
-    one the soft gray structure cannot carry the flow: exit 3, one line naming design.initial."""
-    run = tofsi(cli, command, "--output", "o", scene=FSI, small=False, cwd=tmp_path)
-    lines = run.stderr.strip().splitlines()
-    assert run.returncode == 3, run.stderr
-    failure = [ln for ln in lines if ln.startswith("tofsi:")]
-    assert len(failure) == 1 and "design.initial" in failure[0] and lines[-1] == failure[0]
-    assert "Traceback" not in run.stderr

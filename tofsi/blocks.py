@@ -53,13 +53,16 @@ class Continuation:
     penalty : SIMP exponent ``p`` of ``E(rho) = Emin + rho^p (E0 - Emin)``
     brinkman_q : convexity ``q`` of the Brinkman interpolation ``alpha(rho)``
     beta : projection sharpness of the design map (recorded with the state)
-    load_exponent : weight ``rho^k`` of the stress-divergence fluid load
+    load_exponent : weight ``rho^k`` of the solid phase in the fluid load
+    coupling : ``"one-way"`` to solve a two-way problem one-way (a continuation
+        stage); ``""``: as the problem is
     """
 
     penalty: float = 3.0
     brinkman_q: float = 0.1
     beta: float = 0.0
     load_exponent: float = 1.0
+    coupling: str = ""
 
 
 class Linearization(ABC):
@@ -162,6 +165,7 @@ class FieldBlock(ABC):
     symbol: str = ""                   # the residual's letter in reports (F, S, D); default the name
     report_name: str = ""
     has_residual: bool = True          # False: an explicit (path-dependent) map
+    slow_couplings: tuple[str, ...] = ()   # couplings a quasi-Newton solve may keep fixed
 
     @property
     @abstractmethod

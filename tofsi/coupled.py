@@ -43,12 +43,13 @@ def continuation(scene, stage: int = 0) -> Continuation:
     d = scene.design
 
     def pick(schedule, default):
-        return float(schedule[min(stage, len(schedule) - 1)]) if schedule else default
+        return schedule[min(stage, len(schedule) - 1)] if schedule else default
     defaults = Continuation()
-    return Continuation(penalty=pick(d.penalty, defaults.penalty),
-                        brinkman_q=pick(d.brinkman_q, defaults.brinkman_q),
-                        beta=pick(d.beta, defaults.beta),
-                        load_exponent=scene.structure.load_exponent)
+    return Continuation(penalty=float(pick(d.penalty, defaults.penalty)),
+                        brinkman_q=float(pick(d.brinkman_q, defaults.brinkman_q)),
+                        beta=float(pick(d.beta, defaults.beta)),
+                        load_exponent=scene.structure.load_exponent,
+                        coupling=pick(d.coupling, ""))
 
 
 class CoupledModel:
@@ -80,8 +81,12 @@ class CoupledModel:
         if self.motion is not None:
             blocks.append(MotionField(self.motion))
         c = scene.coupled
-        self.system = BlockSystem(blocks, CouplingSettings(c.method, c.tol, c.max_iter, c.relaxation,
-                                                           relax="u"))
+        settings = CouplingSettings(c.method, c.tol, c.max_iter, c.relaxation, relax="u",
+                                    quasi_newton=c.quasi_newton)
+        self.system = BlockSystem(blocks, settings)
+        self.one_way_system = self.system                  # a two-way problem's one-way stages
+        if self.two_way:
+            self.one_way_system = BlockSystem([FlowField(self.flow), StructureField(self.structure)], settings)
         self.params = continuation(scene)
 
     # ---- densities -----------------------------------------------------------------
@@ -98,6 +103,10 @@ class CoupledModel:
         return rho
 
     # ---- forward solve -------------------------------------------------------------------
+    def system_for(self, params: Continuation) -> BlockSystem:
+        """The block system a solve at ``params`` uses (a two-way problem's one-way stage: no mesh)."""
+        return self.one_way_system if params.coupling == "one-way" else self.system
+
     def solve(self, rho: np.ndarray, guess: State | None = None, progress=None,
               params: Continuation | None = None) -> State:
         """The coupled state for densities ``rho`` (E,) at continuation ``params`` (default:
@@ -105,7 +114,8 @@ class CoupledModel:
         t0 = time.perf_counter()
         if self.flow is None:
             raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow")
-        state = self.system.solve(rho, self.params if params is None else params, guess, progress)
+        params = self.params if params is None else params
+        state = self.system_for(params).solve(rho, params, guess, progress)
         state.reports["wall_time_s"] = time.perf_counter() - t0
         return state
 

@@ -244,14 +244,20 @@ def plot_design(path, points, quads, rho, speed=None, title="", width=8.0) -> No
 
 def plot_convergence(path, history: list[dict], title="", objective_label="objective") -> None:
     """Objective (log scale when it spans decades) and volume constraint versus iteration;
-    the start of each continuation stage is a dashed line labelled with its beta."""
+    the start of each continuation stage is a dashed line labelled with its beta. When the
+    fluid mesh moved (two-way stages), a second panel shows its quality per iteration: the
+    smallest element skewness and the range of element area change."""
     it = [h["iteration"] for h in history]
-    fig, ax = plt.subplots(figsize=(7.5, 4.2), dpi=110, layout="constrained")
+    skew = np.array([h.get("min_skewness", np.nan) for h in history], dtype=float)
+    moved = bool(np.isfinite(skew).any())
+    fig, axes = plt.subplots(2 if moved else 1, 1, figsize=(7.5, 6.6 if moved else 4.2), dpi=110,
+                             layout="constrained", sharex=True, squeeze=False)
+    ax = axes[0, 0]
     objective = np.array([h["objective"] for h in history])
     lines = ax.plot(it, np.abs(objective), "b-", label=objective_label)
     if np.all(objective > 0) and objective.max() / objective.min() > 20:
         ax.set_yscale("log")
-    ax.set_xlabel("design iteration")
+    axes[-1, 0].set_xlabel("design iteration")
     ax.set_ylabel(objective_label, color="b")
     ax2 = ax.twinx()
     lines += ax2.plot(it, [h["constraint"] for h in history], "r-", label="volume constraint g")
@@ -259,13 +265,28 @@ def plot_convergence(path, history: list[dict], title="", objective_label="objec
     ax2.set_ylabel("volume constraint g (<= 0 feasible)", color="r")
     starts = [k for k in range(1, len(history)) if history[k]["stage"] != history[k - 1]["stage"]]
     for n, k in enumerate(starts):
-        line = ax.axvline(history[k]["iteration"], color="0.5", lw=0.8, ls="--",
-                          label="new continuation stage" if n == 0 else None)
+        for row in axes[:, 0]:
+            line = row.axvline(history[k]["iteration"], color="0.5", lw=0.8, ls="--",
+                               label="new continuation stage" if n == 0 else None)
         if n == 0:
             lines.append(line)
-        ax.annotate(f"beta {history[k]['beta']:g}", (history[k]["iteration"], 1.0),
-                    xycoords=("data", "axes fraction"), xytext=(2, -10), textcoords="offset points",
-                    fontsize=7, color="0.35")
+        coupling = history[k].get("coupling", "")
+        ax.annotate(f"beta {history[k]['beta']:g}" + (f", {coupling}" if coupling else ""),
+                    (history[k]["iteration"], 1.0), xycoords=("data", "axes fraction"), xytext=(2, -10),
+                    textcoords="offset points", fontsize=7, color="0.35")
+    if moved:
+        q = axes[1, 0]
+        q.plot(it, skew, "g-", label="min element skewness")
+        q.set_ylabel("min skewness (1 best, < 0 inverted)", color="g")
+        q.axhline(0.0, color="g", lw=0.5, ls=":")
+        qa = q.twinx()
+        lo = [h.get("min_area_change", np.nan) for h in history]
+        hi = [h.get("max_area_change", np.nan) for h in history]
+        qa.plot(it, lo, "m--", lw=0.9, label="min area change")
+        qa.plot(it, hi, "m:", lw=0.9, label="max area change")
+        qa.set_ylabel("element area change A / A0", color="m")
+        q.grid(alpha=0.3)
+        q.set_title("moved fluid mesh", fontsize=9)
     fig.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="outside lower center",
                ncols=len(lines), frameon=False)
     ax.grid(alpha=0.3, which="both")

@@ -64,10 +64,13 @@ class Problem:
             return np.full(self.n_design, fraction if self.scene.design.constraint == "solid" else 1 - fraction)
         return read_design(path, self.n_design)         # checked: shape, finite, in [0, 1]
 
-    def set_stage(self, beta: float | None = None, penalty: float | None = None, q: float | None = None):
+    def set_stage(self, beta: float | None = None, penalty: float | None = None, q: float | None = None,
+                  coupling: str | None = None):
         """Change continuation parameters: a new :attr:`params` record (nothing else changes)."""
         changes = {k: float(v) for k, v in (("beta", beta), ("penalty", penalty), ("brinkman_q", q))
                    if v is not None}
+        if coupling is not None:
+            changes["coupling"] = coupling
         self.params = dataclasses.replace(self.params, **changes)
         if beta is not None:
             self.map = self.map.with_beta(beta)
@@ -107,7 +110,8 @@ class Problem:
 
     def _adjoint(self, entry) -> Adjoint:
         if "adjoint" not in entry:
-            entry["adjoint"] = Adjoint(self.model.system, entry["state"])
+            state = entry["state"]
+            entry["adjoint"] = Adjoint(self.model.system_for(state.params), state)
         return entry["adjoint"]
 
     def evaluate(self, gamma) -> tuple[float, np.ndarray]:

@@ -133,6 +133,7 @@ class MoverSettings:
     name: str
     layers: tuple[float, ...] = ()
     params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    layers_from: str = "density"
 
     @property
     def options(self):
@@ -171,18 +172,24 @@ _TABLES = {"geometry": Geometry, "mesh": MeshSettings, "deformation": Deformatio
 _TOP = {"name", "description", "effects", "mover", *_TABLES}
 
 
+LAYERS_FROM = ("density", "solid")
+
+
 def _build_mover(raw: dict, mover_name: str) -> MoverSettings:
     names = movers.available()
     raw = dict(raw)
     layers = raw.pop("layers", [])
+    layers_from = coerce(str, raw.pop("layers_from", "density"), "mover.layers_from",
+                         dict(choices=LAYERS_FROM))
     for key, value in raw.items():
         if key not in names:
-            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, or a "
+            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, layers_from, or a "
                              "parameter table of one of " + ", ".join(map(repr, names)))
     factors = coerce(tuple[float, ...], layers, "mover.layers",
                      dict(gt=0, doc="stiffening factor per element layer"))
     params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
-    return MoverSettings(name=mover_name, layers=factors, params=MappingProxyType(params))
+    return MoverSettings(name=mover_name, layers=factors, params=MappingProxyType(params),
+                         layers_from=layers_from)
 
 
 def _mover_name(raw: dict) -> str:
@@ -259,6 +266,10 @@ def scene_from_dict(raw: dict, source: str = "") -> Scene:
     effects = build(Effects, effects_raw, "effects")
     mover = _build_mover(mover_raw, mover_name)
     _check_across_tables(tables["geometry"], tables["mesh"], tables["fluid"])
+    two_way = effects.coupling == "two-way" and effects.mesh_motion != "none"
+    if "two-way" in tables["design"].coupling and not two_way:
+        raise InputError("design.coupling", list(tables["design"].coupling),
+                         "two-way stages need effects.coupling = \"two-way\" and a mover (mover.name)")
     return Scene(name=name, description=description, effects=effects, mover=mover,
                  source=source, **tables)
 
@@ -345,7 +356,10 @@ def reference_table() -> str:
             ("mover.name", "none", "none, " + ", ".join(movers.available()),
              "the mover (same setting as effects.mesh_motion)"),
             ("mover.layers", [], "list of numbers, each 0 < value",
-             "stiffening factor of each element layer counted from the interface")]
+             "stiffening factor of each element layer counted from the interface"),
+            ("mover.layers_from", "density", "one of 'density', 'solid'",
+             "design scenes: count the layers from the evolving design (smooth dilation of the "
+             "densities, gray elements partly stiffened, differentiable) or from the fixed solid only")]
     for key, cls in _TABLES.items():
         rows += documentation(cls, key)
     rows += [r for r in documentation(Effects, "effects")]

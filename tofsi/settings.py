@@ -73,13 +73,17 @@ class StructureSettings:
 class CoupledSettings:
     """The two-way coupled solve (table ``[coupled]``)."""
 
-    method: str = option("partitioned", choices=("partitioned", "monolithic"),
-                         doc="fixed point with Aitken relaxation, or Newton on the 3x3 block Jacobian "
-                             "(needs a mover with a residual form)")
+    method: str = option("auto", choices=("auto", "partitioned", "monolithic"),
+                         doc="fixed point with Aitken relaxation, or Newton on the block Jacobian "
+                             "(needs a mover with a residual form); auto: monolithic when the mover "
+                             "has a residual form, partitioned otherwise")
     tol: float = option(1e-9, gt=0, lt=1, doc="relative change of u (partitioned) or residual "
                                                "per block (monolithic)")
     max_iter: int = option(60, ge=1, le=10_000, doc="coupling iterations")
     relaxation: float = option(0.5, gt=0, le=1, doc="first Aitken relaxation factor")
+    quasi_newton: bool = option(True, doc="monolithic: keep the shape derivatives (F_x, S_x) of the "
+                                          "first iterate for the rest of the Newton solve (the "
+                                          "adjoint gets the exact ones of the converged state)")
 
 
 def objective_names() -> tuple[str, ...]:
@@ -116,6 +120,11 @@ class DesignSettings:
                                            doc="convexity q of the Brinkman interpolation, one value "
                                                "per stage (last value kept); `tofsi solve` uses the "
                                                "first (alias: fluid.brinkman_q)")
+    coupling: tuple[str, ...] = option((), choices=("one-way", "two-way"),
+                                       doc="coupling of each stage (last value kept) for a two-way "
+                                           "scene: one-way stages first find the topology at one-way "
+                                           "cost, two-way stages design against the deforming flow; "
+                                           "empty: effects.coupling throughout")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
                                   "(path relative to the working directory); empty: uniform")
@@ -124,6 +133,11 @@ class DesignSettings:
         if not self.beta:
             raise InputError("beta", [], "needs at least one value (the projection sharpness of "
                              "each continuation stage; 0: no projection)")
+
+    @property
+    def n_stages(self) -> int:
+        """Continuation stages: the longest schedule (the others keep their last value)."""
+        return max(len(self.beta), len(self.penalty), len(self.brinkman_q), len(self.coupling), 1)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ def run(scene, args, ctx) -> dict:
     with ctx.step("solving the random design"):
         state = problem.solve(gamma)
     with ctx.step("checking every Jacobian block and the total derivatives"):
-        rows = check_blocks(problem.model.system, state, args.seed) + check_totals(problem, gamma, args.seed)
+        rows = check_blocks(problem.model.system_for(state.params), state, args.seed) + check_totals(problem, gamma, args.seed)
     ctx.say(f"{'check':28s} {'Taylor rate':>11s} {'CD rel. error':>14s}  result")
     for r in rows:
         rate = "linear" if r["linear"] else f"{r['min_rate']:.3f}"

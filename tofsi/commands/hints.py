@@ -27,5 +27,10 @@ def hint(err, scene, command: str = "") -> str:
     if (command in ("solve", "optimize") and scene.has_design and scene.effects.coupling == "two-way"
             and not scene.design.initial and "mover" in message):
         return ("the two-way coupled solve failed on the uniform gray design (too soft for the "
-                "flow's load); start from a saved design: --set design.initial=FILE")
+                "flow's load); start the schedule one-way (design.coupling = [\"one-way\", ..., "
+                "\"two-way\"]) or from a saved design: --set design.initial=FILE")
+    if command == "solve" and scene.has_design and message.startswith("structure: displacement"):
+        return ("the structure is held, but this design is far too soft for small-strain elasticity "
+                "(a gray starting design of a soft scene); solve a designed structure: "
+                "--design FILE (the design.npy of tofsi optimize), with --stage last")
     return ""

@@ -7,6 +7,7 @@ import sys
 import numpy as np
 
 from tofsi.optimize import Optimizer
+from tofsi import quality
 from tofsi.output import atomic_write, write_vtu
 from tofsi.plotting import OBJECTIVE_LABELS, plot_convergence, plot_design
 from tofsi.problem import Problem
@@ -20,7 +21,8 @@ class Pictures:
     the design variables ``design_variable`` (gamma), the filtered densities
     ``filtered_density`` (before projection), the objective's sensitivity
     ``sensitivity`` (df/dgamma) -- the last three are NaN outside the design
-    region -- and the region tag.
+    region -- the region tag, and where the fluid mesh moved (two-way stages) its
+    per-element ``skewness`` and ``area_change``.
     """
 
     def __init__(self, ctx, problem):
@@ -54,8 +56,11 @@ class Pictures:
         name = f"design_{tag}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
                     title=f"{p.scene.name}: design at iteration {iteration}")
-        write_vtu(self.ctx.output / f"{name}.vtu", X, {"quad": mesh.quads}, point_data,
-                  {"density": state.rho, "region": mesh.region, **self.design_fields(gamma)})
+        cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma)}
+        if state.x is not None:                                  # the moved fluid mesh's quality
+            cells["skewness"] = quality.skewness(X, mesh.quads)
+            cells["area_change"] = quality.area_change(mesh.points, X, mesh.quads)
+        write_vtu(self.ctx.output / f"{name}.vtu", X, {"quad": mesh.quads}, point_data, cells)
         if iteration != "final":
             self.series.append((iteration, f"{name}.vtu"))
             self._collection()

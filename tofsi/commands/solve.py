@@ -71,13 +71,13 @@ def design_densities(scene, args):
         model = CoupledModel(scene)
         return model, model.densities(), {}, None
     d = scene.design
-    n_stages = max(len(d.beta), len(d.penalty), len(d.brinkman_q), 1)
+    n_stages = d.n_stages
     stage = n_stages - 1 if stage_arg == "last" else (int(stage_arg) if stage_arg.isdigit() else -1)
     if not 0 <= stage < n_stages:
         raise InputError("--stage", stage_arg, f"allowed: 0 to {n_stages - 1} or last")
     problem = Problem(scene)                         # reads and checks design.initial
     params = continuation(scene, stage)
-    problem.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q)
+    problem.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q, coupling=params.coupling)
     gamma = problem.initial_design()
     about = {"design": d.initial or "uniform", "stage": stage, "beta": params.beta,
              "penalty": params.penalty, "brinkman_q": params.brinkman_q}

@@ -134,6 +134,7 @@ class FlowField(FieldBlock):
         self.flow = flow
         self.size = flow.size
         self.inputs = ("x",) if moving_mesh else ()
+        self.slow_couplings = self.inputs            # F_x: the shape derivative
 
     @property
     def fixed(self):
@@ -239,6 +240,7 @@ class StructureField(FieldBlock):
         self.structure = structure
         self.size = structure.size
         self.inputs = ("w", "x") if moving_mesh else ("w",)
+        self.slow_couplings = ("x",) if moving_mesh else ()     # S_x: the load's shape derivative
 
     @property
     def fixed(self):

@@ -33,7 +33,8 @@ the viscous shear (kept to reproduce published results). It is linear in
 
 Every form gives its element loads and their partial derivatives with
 respect to ``w`` and ``rho`` from one kernel call, and with respect to the
-mesh position by the complex step through the same kernel.
+mesh position analytically (:mod:`tofsi.physics.fluid_shape`; the tests
+check them against the complex step through the same kernels).
 """
 
 from __future__ import annotations
@@ -42,11 +43,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from tofsi.blocks import Continuation
-from tofsi.fem.assembly import assemble_vector, element_dofs
-from tofsi.fem.complex_step import corner_derivatives
+from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.geometry import physical_gradients, physical_hessians
 from tofsi.fem.shapes import Q2_NODES, shape_functions
 from tofsi.physics.fluid_kernel import N1, N2, POINTS, WEIGHTS, brinkman_partial
+from tofsi.physics.fluid_shape import mass_shape, stress_load_shape
 
 LOAD_FORMS = ("reaction", "stress-divergence")
 Q2_TO_Q1, _ = shape_functions(1, Q2_NODES)                      # (9, 4): T_ba = M_a(x_b)
@@ -108,6 +109,8 @@ class FluidForce:
         self.free = (~flow.bc.is_fixed[flow.dofs[:, :18]]).astype(float)       # (E, 18)
         self._operators = None            # (x bytes, B) of the stress-divergence form
         self._last = None                 # (key, element values) of the last evaluation
+        self._fluid_pattern = None        # CSR patterns of df/dw and df/dx (made on first use)
+        self._shape_pattern = None
 
     # ---- weights -----------------------------------------------------------------------
     @staticmethod
@@ -187,10 +190,9 @@ class FluidForce:
 
     def fluid_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
         """``df/dw`` (2n x size of w)."""
-        dw = self.elements(w, x, rho, params, partials=True)[1]
-        rows = np.broadcast_to(self.dofs[:, :, None], dw.shape)
-        cols = np.broadcast_to(self.flow.dofs[:, None, :], dw.shape)
-        return sp.csr_matrix((dw.ravel(), (rows.ravel(), cols.ravel())), shape=(self.size, self.flow.size))
+        if self._fluid_pattern is None:
+            self._fluid_pattern = SparsePattern(self.dofs, self.flow.dofs, (self.size, self.flow.size))
+        return self._fluid_pattern.assemble(self.elements(w, x, rho, params, partials=True)[1])
 
     def fluid_partial_transpose(self, lam, w, x, rho, params=None) -> np.ndarray:
         """``(df/dw)^T lam`` (size of w) without assembling ``df/dw``."""
@@ -201,16 +203,34 @@ class FluidForce:
         """``df_e/drho_e`` ``(E, 8)``."""
         return self.elements(w, x, rho, params, partials=True)[2]
 
+    def shape_elements(self, w, x, rho, params=None) -> np.ndarray:
+        """``df_e/dXe`` ``(E, 8, 8)``, analytic (:mod:`tofsi.physics.fluid_shape`).
+
+        Reaction form: ``d rows_e = free ((alpha - alpha_min - psi alpha) d(A_e w_e) + psi dR_e)``
+        with the flow's ``dR_e/dXe`` (:meth:`~tofsi.physics.flow.Flow.shape_elements`, shared
+        with ``F_x``); stress-divergence form: ``psi_e d(B_e w_e)``.
+        """
+        fl = self.flow
+        rho = np.zeros(fl.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        psi = self.weight(rho, params)
+        ve, pe = fl.split(w)
+        Xe = fl.corners(x)
+        if self.form == "stress-divergence":
+            return stress_load_shape(Xe, ve, pe, fl.settings.viscosity) * psi[:, None, None]
+        brinkman = fl.brinkman(params)
+        alpha = brinkman(rho)
+        dR = fl.shape_elements(w, x, rho, params)[1][:, :18]
+        drows = ((alpha - brinkman.alpha_min - psi * alpha)[:, None, None] * mass_shape(Xe, ve)
+                 + psi[:, None, None] * dR)
+        return np.matmul(ROWS_TO_CORNERS, self.free[..., None] * drows)
+
     def shape_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
-        """``df/dx`` (2n x 2n): the complex step through the element kernel."""
-        rho = np.zeros(self.flow.mesh.n_elements) if rho is None else rho
-        if self.form == "reaction":
-            vals = corner_derivatives(lambda Xc: self._reaction(w, rho, params, Xc, False)[0],
-                                      self.flow.corners(x))                                # (E, 8, 8)
-        else:
-            we, mu = w[self.flow.dofs], self.flow.settings.viscosity
-            vals = corner_derivatives(lambda Xc: np.einsum("eab,eb->ea", load_operator(Xc, mu), we),
-                                      self.flow.corners(x)) * self.weight(rho, params)[:, None, None]
-        rows = np.broadcast_to(self.dofs[:, :, None], vals.shape)
-        cols = np.broadcast_to(self.dofs[:, None, :], vals.shape)
-        return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(self.size, self.size))
+        """``df/dx`` (2n x 2n)."""
+        if self._shape_pattern is None:
+            self._shape_pattern = SparsePattern(self.dofs, self.dofs, (self.size, self.size))
+        return self._shape_pattern.assemble(self.shape_elements(w, x, rho, params))
+
+    def shape_partial_transpose(self, lam, w, x, rho, params=None) -> np.ndarray:
+        """``(df/dx)^T lam`` (2n,) without assembling ``df/dx``."""
+        return assemble_vector(self.dofs, np.einsum("eab,ea->eb", self.shape_elements(w, x, rho, params),
+                                                    lam[self.dofs]), self.size)
