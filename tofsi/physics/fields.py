@@ -81,11 +81,6 @@ class FlowLinearization(_EliminatedLinearization):
             self._linearize()
         return self._residual
 
-    @property
-    def solver(self):
-        """The forward move's solver (None if there is none yet), recycled by the next move."""
-        return self._solver
-
     def _solver_for(self):
         if self._solver is None:
             self._solver = RecyclingSolver(self.flow.factorize)
