@@ -273,10 +273,10 @@ class YeohMover(Mover):
             r = eqs.residual(Re, x, load)
             norm = float(np.linalg.norm(r))
             history.append(norm)
-            log.info("yeoh Newton %d: |R| = %.3e (target %.2e, scale %.2e)", it, norm, self._tolerance(eqs, Re, scale), scale)
+            target = self._tolerance(eqs, Re, scale)
+            log.info("yeoh Newton %d: |R| = %.3e (target %.2e, scale %.2e)", it, norm, target, scale)
             if not np.isfinite(norm):
                 return None, None, history, "non-finite residual"
-            target = self._tolerance(eqs, Re, scale)
             if norm <= target:
                 return x, (Re, Ke), history, ""
             if it == p.max_newton:
