@@ -95,9 +95,10 @@ class Problem:
         return solid if self.scene.design.constraint == "solid" else 1.0 - solid
 
     def feasible(self, gamma, margin: float = 1e-3) -> np.ndarray:
-        """``gamma`` if it meets the phase-fraction bound, else ``clip(gamma - s delta, 0, 1)``
-        with the smallest shift ``delta`` (bisection, 50 steps) that brings the fraction to
-        ``(1 - margin)`` of the bound (``s = +1`` for a solid bound, ``-1`` for a fluid one).
+        """``gamma`` if it meets the phase-fraction bound to within ``margin`` (relative), else
+        ``clip(gamma - s delta, 0, 1)`` with the smallest shift ``delta`` (bisection, 50 steps)
+        that brings the fraction to ``(1 - margin)`` of the bound (``s = +1`` for a solid bound,
+        ``-1`` for a fluid one).
 
         A sharper projection (a new beta) can move a feasible design past the bound; NLopt's
         MMA and CCSAQ then raise the constraint's multiplier to regain feasibility and keep it
@@ -106,8 +107,8 @@ class Problem:
         from the shifted start). The shift is a filtering and a projection, no solve."""
         gamma = np.asarray(gamma, dtype=float)
         bound = self.scene.design.volume_fraction * (1.0 - margin)
-        if self.phase_fraction(gamma) <= self.scene.design.volume_fraction:
-            return gamma
+        if self.phase_fraction(gamma) <= self.scene.design.volume_fraction * (1.0 + margin):
+            return gamma                      # MMA's own end-of-stage violations stay as they are
         sign = 1.0 if self.scene.design.constraint == "solid" else -1.0
         lo, hi = 0.0, 1.0
         for _ in range(50):
