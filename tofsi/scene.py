@@ -22,8 +22,8 @@ from typing import Any, Mapping
 import movers
 from tofsi.config import build, coerce, option
 from tofsi.errors import InputError
-from tofsi.settings import (CoupledSettings, DesignSettings, FluidSettings, OptimizerSettings,
-                            StructureSettings)
+from tofsi.settings import (BandSettings, CoupledSettings, DesignSettings, FluidSettings,
+                            OptimizerSettings, StructureSettings, TuneSettings)
 
 @dataclass(frozen=True)
 class Geometry:
@@ -112,6 +112,7 @@ class MoverSettings:
     name: str
     layers: tuple[float, ...] = ()
     params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    band: BandSettings = dataclasses.field(default_factory=BandSettings)
 
     @property
     def options(self):
@@ -135,6 +136,7 @@ class Scene:
     design: DesignSettings
     optimizer: OptimizerSettings
     coupled: CoupledSettings
+    tune: TuneSettings = dataclasses.field(default_factory=TuneSettings)
     source: str = ""
 
     @property
@@ -144,7 +146,7 @@ class Scene:
 
 _TABLES = {"geometry": Geometry, "mesh": MeshSettings, "deformation": Deformation,
            "fluid": FluidSettings, "structure": StructureSettings, "design": DesignSettings,
-           "optimizer": OptimizerSettings, "coupled": CoupledSettings}
+           "optimizer": OptimizerSettings, "coupled": CoupledSettings, "tune": TuneSettings}
 _TOP = {"name", "description", "effects", "mover", *_TABLES}
 
 
@@ -152,14 +154,15 @@ def _build_mover(raw: dict, mover_name: str) -> MoverSettings:
     names = movers.available()
     raw = dict(raw)
     layers = raw.pop("layers", [])
+    band = build(BandSettings, raw.pop("band", {}), "mover.band")
     for key, value in raw.items():
         if key not in names:
-            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, or a "
+            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, band, or a "
                              "parameter table of one of " + ", ".join(map(repr, names)))
     factors = coerce(tuple[float, ...], layers, "mover.layers",
                      dict(gt=0, doc="stiffening factor per element layer"))
     params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
-    return MoverSettings(name=mover_name, layers=factors, params=MappingProxyType(params))
+    return MoverSettings(name=mover_name, layers=factors, params=MappingProxyType(params), band=band)
 
 
 def _mover_name(raw: dict) -> str:
@@ -306,6 +309,7 @@ def reference_table() -> str:
     for key, cls in _TABLES.items():
         rows += documentation(cls, key)
     rows += [r for r in documentation(Effects, "effects")]
+    rows += documentation(BandSettings, "mover.band")
     for name in movers.available():
         rows += documentation(movers.mover_class(name).Params, f"mover.{name}")
 
