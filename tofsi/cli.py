@@ -25,6 +25,7 @@ COMMANDS = {
     "check-gradients": "adjoint versus finite differences, block by block and total",
     "solve": "forward analysis of the scene's design with the effects the scene enables",
     "study": "parametric sweep (stiffening factors, A20, kappa, increments, mesh size) to a CSV and a plot",
+    "tune": "stiffening factors tuned by gradients (NLopt) for the best mesh quality of the scene's motion",
 }
 
 
