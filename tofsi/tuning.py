@@ -24,7 +24,9 @@ The gradient is the chain ``dQ/dz = (dx/df)^T dQ/dx . df/dz``: ``dQ/dx`` from
 vector-Jacobian product (one transposed tangent solve for the residual movers,
 linear and Yeoh; the reverse sweep through the increments for the spring
 analogy), so one evaluation costs one move and one adjoint per function.
-Inverted meshes are accepted while tuning (the signed skewness says how bad).
+Inverted meshes are accepted while tuning: the soft measure stays continuous
+where a corner folds over, so a start where the mover inverts elements still
+has a gradient that points back to valid meshes.
 The tuned factors are the evaluated point with the highest true minimum
 skewness (among those that meet the area bounds).
 """
@@ -293,6 +295,9 @@ def tune(scene, progress=None, setup: MotionSetup | None = None) -> TuneResult:
     if s.algorithm == "LBFGS" and (s.min_area_change or s.max_area_change):
         raise InputError("tune.algorithm", s.algorithm, "LBFGS takes no constraints; with area "
                          "bounds use SLSQP, MMA or CCSAQ")
+    if scene.mover.name == "spring" and scene.mover.options.diagonals == "selective":
+        log.warning("tune: selective diagonals switch as the factors change and the gradient holds "
+                    "them fixed; mover.spring.diagonals = 'both' gives a smooth map")
     t0 = time.perf_counter()
     setup = setup or motion_setup(scene)
     param = parametrization(setup, s, scene.mover.layers)
