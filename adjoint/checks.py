@@ -79,7 +79,7 @@ def check_blocks(system, state, seed: int = 0, cd_tol: float = 1e-6) -> list[dic
     rng = np.random.default_rng(seed)
     rho, params = state.rho, state.params
     rows = []
-    h = 1e-6
+    h = 1e-4                   # times directions of 1 % of the field: steps of 1e-6 of it
     for block in system.blocks:
         lin = state.linearizations[block.name]
         if block.has_residual:
@@ -105,7 +105,7 @@ def check_blocks(system, state, seed: int = 0, cd_tol: float = 1e-6) -> list[dic
             rows.append(check_row(f"{block.symbol or block.name}_{field}", eps, rem, rates, relative_error(cd, slope),
                                   abs(slope), cd_tol))
         if rho_bar is not None or block.has_residual:
-            d = 0.05 * rng.normal(size=rho.size)
+            d = 0.01 * rng.normal(size=rho.size)          # densities in (0, 1): small steps
             slope = float((np.zeros(rho.size) if rho_bar is None else rho_bar) @ d)
             g = lambda r: phi(rho_=r, lam=lam)
             eps, rem, rates = _scalar_taylor(g, rho, slope, d)

@@ -51,10 +51,7 @@ class Adjoint:
         comp = comp or (self.system.cycles[-1] if self.system.cycles else comps[-1])
         if len(comp) == 1:
             return "one-way"
-        coupled = self.state.coupled
-        if coupled is not None and tuple(coupled.names) == tuple(comp):
-            return "monolithic"
-        return "block Gauss-Seidel"
+        return "monolithic" if tuple(comp) in self.state.coupled else "block Gauss-Seidel"
 
     def gradient(self, partials: dict) -> np.ndarray:
         """``d quantity / d rho`` (E,) from the quantity's partials ``{field: df/dz, "rho": df/drho}``."""
@@ -88,7 +85,7 @@ class Adjoint:
         return total
 
     def _monolithic(self, comp, bars) -> dict:
-        coupled = self.state.coupled
+        coupled = self.state.coupled[tuple(comp)]
         lam = coupled.solve_transpose(-np.concatenate([bars[n] for n in comp]))
         return self.system.split(lam, comp)
 

@@ -19,11 +19,15 @@ two cores) or one study:
 
     python examples/mesh_motion_study.py all --jobs 2
     python examples/mesh_motion_study.py triangulation --mesh uniform
+
+``TOFSI_EXAMPLE_SMALL=1`` runs every study on coarse meshes over two values
+per swept key and one problem (seconds; the test suite does this).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +48,15 @@ MESHES = {"graded": [], "uniform": ["mesh.h_min=0.0125", "mesh.h_max=0.0125", "m
 MOVERS = ("spring", "linear", "yeoh")
 DIAGONALS = ("1-3", "2-4", "both", "selective")
 FACTORS = tuple(float(v) for v in np.round(np.arange(1.0, 6.0001, 0.25), 6))
+COARSE = tuple(float(v) for v in np.arange(1.0, 6.0001, 0.5))       # two-layer grid, then
+FINE = (0.5, 0.1)                                                    # best +- 0.5 by 0.1
+A20 = tuple(10.0 ** k for k in range(-1, 6))
+KAPPA = (0.1, 1.0, 10.0, 100.0)
+if os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0":
+    PROBLEMS = {k: PROBLEMS[k] for k in ("foil-rotation",)}
+    MESHES = {name: ["mesh.h_min=0.05", "mesh.h_max=0.1"] for name in MESHES}
+    FACTORS = COARSE = (1.0, 3.0)
+    FINE, A20, KAPPA = (0.0, 1.0), (1.0, 1e3), (1.0,)
 
 
 class Study:
@@ -113,13 +126,13 @@ def two_layer_grid(study: Study, mover: str, problem: str) -> tuple[list[dict], 
     """The two-layer grid search: coarse (1 to 6 by 0.5), then fine (best +- 0.5 by 0.1);
     one move per row."""
     extra = ["mover.spring.diagonals=both"] if mover == "spring" else []
-    coarse = tuple(float(v) for v in np.arange(1.0, 6.0001, 0.5))
     rows = study.run(problem, [f"mover.name={mover}", *extra],
-                     [Sweep("mover.layers[0]", coarse), Sweep("mover.layers[1]", coarse)])
+                     [Sweep("mover.layers[0]", COARSE), Sweep("mover.layers[1]", COARSE)])
     top = best(rows)
 
     def window(c):
-        return tuple(float(v) for v in np.round(np.arange(max(1.0, c - 0.5), c + 0.5001, 0.1), 6))
+        half, step = FINE
+        return tuple(float(v) for v in np.round(np.arange(max(1.0, c - half), c + half + 1e-4, step), 6))
     fine = study.run(problem, [f"mover.name={mover}", *extra],
                      [Sweep("mover.layers[0]", window(top["mover.layers[0]"])),
                       Sweep("mover.layers[1]", window(top["mover.layers[1]"]))])
@@ -145,11 +158,11 @@ def two_layer(study: Study, unstiffened: dict, one: dict) -> None:
 
 
 def yeoh_parameters(study: Study) -> None:
-    a20 = tuple(10.0 ** k for k in range(-1, 6))
+    a20 = A20
     rows = []
     for problem in PROBLEMS:
         rows += study.run(problem, ["mover.name=yeoh"],
-                          [Sweep("mover.yeoh.A20", a20), Sweep("mover.yeoh.kappa", (0.1, 1.0, 10.0, 100.0))])
+                          [Sweep("mover.yeoh.A20", a20), Sweep("mover.yeoh.kappa", KAPPA)])
     write_csv(study.output / "yeoh_parameters.csv", rows)
     for problem in PROBLEMS:
         sel = [dict(r, kappa=f"kappa={r['mover.yeoh.kappa']:g}") for r in rows if r["problem"] == problem]

@@ -6,9 +6,12 @@ elasticity, Yeoh hyperelasticity) moves the fluid mesh, and we print the
 worst skewness and area change. Run:
 
     python examples/move_foil.py [rotation|translation|bending] [--output DIR]
+
+``TOFSI_EXAMPLE_SMALL=1`` uses a coarse mesh (the test suite does this).
 """
 
 import argparse
+import os
 from pathlib import Path
 
 import movers
@@ -18,15 +21,16 @@ from tofsi.motion import moved_quality, motion_setup, run_move
 from tofsi.output import write_csv
 
 HERE = Path(__file__).parent
+MESH = ["mesh.h_min=0.05", "mesh.h_max=0.1"] if os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0" else []
 
 
 def main(mode: str = "rotation", output: Path = Path("results/move_foil")) -> list[dict]:
-    scene = tofsi.load_scene(HERE / "scenes" / "foil_in_channel.toml", [f"deformation.mode={mode}"])
+    scene = tofsi.load_scene(HERE / "scenes" / "foil_in_channel.toml", MESH + [f"deformation.mode={mode}"])
     setup = motion_setup(scene)             # the mesh and the foil's motion, shared by all movers
     print(f"foil {mode}: {setup.moving.size} moving quads")
     rows = []
     for name in movers.available():
-        scene_m = tofsi.load_scene(scene.source, [f"deformation.mode={mode}", f"mover.name={name}"])
+        scene_m = tofsi.load_scene(scene.source, MESH + [f"deformation.mode={mode}", f"mover.name={name}"])
         try:
             _, result = run_move(scene_m, setup=setup)
             q = moved_quality(setup, result.displacement)

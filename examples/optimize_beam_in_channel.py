@@ -11,22 +11,37 @@ gives the gradient, NLopt's MMA takes the steps, and the projection gets
 sharper stage by stage. Takes a few minutes on two cores:
 
     python examples/optimize_beam_in_channel.py [--output results/beam_in_channel_optimization]
+
+A rerun replaces this example's earlier results; a folder holding another
+run is refused unless ``--overwrite``. ``TOFSI_EXAMPLE_SMALL=1`` runs a
+coarse mesh for a few iterations (seconds; the test suite does this).
 """
 
 import argparse
+import os
+import sys
 from pathlib import Path
 
 import tofsi
-from tofsi.commands.optimize import Pictures
 from tofsi.commands.context import RunContext
+from tofsi.commands.optimize import Pictures
+from tofsi.errors import InputError
 from tofsi.optimize import Optimizer
-from tofsi.plotting import plot_convergence
+from tofsi.plotting import OBJECTIVE_LABELS, plot_convergence
+from tofsi.provenance import run_record
+from tofsi.run_folder import RunFolder
 
 SCENE = Path(__file__).parent / "scenes" / "beam_in_channel_optimization.toml"
+SMALL = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.15", "optimizer.max_iter=6",
+         "design.stage_iterations=2", "optimizer.output_every=3"]
 
 
-def main(output: Path, overrides=()) -> dict:
+def main(output: Path, overrides=(), overwrite: bool = False) -> dict:
+    if os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0":
+        overrides = SMALL + list(overrides)
     scene = tofsi.load_scene(SCENE, list(overrides))
+    folder = RunFolder(output, program="examples/optimize_beam_in_channel.py", overwrite=overwrite,
+                       replaces_own=True).check()  # never beside another run's files
     problem = tofsi.Problem(scene)            # mesh, flow, structure, design map, objective
     print(f"{problem.n_design} design variables; the objective is the {scene.design.objective}")
 
@@ -40,11 +55,15 @@ def main(output: Path, overrides=()) -> dict:
             print(f"  iteration {it.iteration:4d}  stage {it.stage}  compliance {it.objective:.5g}"
                   f"  volume {it.volume:.4f}  {it.time_s:6.1f} s")
 
-    ctx = RunContext(output=Path(output))
+    ctx = RunContext(output=Path(output), folder=folder,   # run.json: scene, versions, times
+                     record=run_record(scene, overrides, sys.argv, folder.program))
+    ctx.begin()
     optimizer = Optimizer(problem, output, on_iteration=report, on_picture=Pictures(ctx, problem))
     result = optimizer.run()
     plot_convergence(Path(output) / "convergence.png", [h.__dict__ for h in optimizer.history],
-                     title="beam in a channel: compliance")
+                     title="beam in a channel", objective_label=OBJECTIVE_LABELS["compliance"])
+    ctx.extra["stop_reason"] = result["stop_reason"]
+    ctx.finish(0)
     print(f"final compliance {result['objective']:.5g} J/m (from {f:.4g}), volume {result['volume']:.4f},"
           f" non-discreteness {result['non_discreteness_percent']:.1f} %, drag {result['drag']:.3g} N/m")
     print(f"pictures, VTU series (design_series.pvd), history and checkpoint in {output}")
@@ -55,5 +74,9 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--output", type=Path, default=Path("results/beam_in_channel_optimization"))
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--overwrite", action="store_true", help="replace another run's files in --output")
     args = parser.parse_args()
-    main(args.output, args.set)
+    try:
+        main(args.output, args.set, args.overwrite)
+    except InputError as err:
+        sys.exit(f"error: {err}")

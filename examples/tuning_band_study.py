@@ -18,6 +18,9 @@ that page, e.g. ``docs/mesh_motion_study.md``):
     python examples/tuning_band_study.py all --jobs 2 --docs docs/mesh_motion_study.md
     python examples/tuning_band_study.py band --refine 2.2 3.8
 
+``TOFSI_EXAMPLE_SMALL=1`` runs both on coarse meshes, one problem and the smallest grid
+(seconds; the test suite does this).
+
 The grid search reuses ``two_layer_<mover>_<problem>.csv`` from ``--grid`` (the
 output of ``mesh_motion_study.py two-layer``) when present, else runs it.
 """
@@ -25,6 +28,7 @@ output of ``mesh_motion_study.py two-layer``) when present, else runs it.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -40,7 +44,7 @@ from tofsi.study import best
 from tofsi.tuning import tune
 
 sys.path.insert(0, str(Path(__file__).parent))
-from mesh_motion_study import MOVERS, PROBLEMS, SCENES, Study, two_layer_grid  # noqa: E402
+from mesh_motion_study import MESHES, MOVERS, PROBLEMS, SCENES, Study, two_layer_grid  # noqa: E402
 
 PAPER_BEST = {  # Abdelhamid & Czekanski, Table 3 ("Summary of all minimum skewness results"):
     "spring": [0.493, 0.506, 0.510, 0.527],    # two layers
@@ -48,11 +52,14 @@ PAPER_BEST = {  # Abdelhamid & Czekanski, Table 3 ("Summary of all minimum skewn
     "yeoh": [0.512, 0.613, 0.683, 0.691],      # two layers
 }
 REFINE = [2.2, 3.8, 6.9, 12.0]               # benchmarks/movers.py: about 1e4 .. 2.4e5 nodes
+SMALL = os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0"
+if SMALL:
+    REFINE = [0.5]
 
 
 def scene(problem: str, *overrides):
     name, extra = PROBLEMS[problem]
-    return tofsi.load_scene(SCENES / f"{name}.toml", [*extra, *overrides])
+    return tofsi.load_scene(SCENES / f"{name}.toml", [*extra, *MESHES["graded"], *overrides])
 
 
 def mover_overrides(mover: str) -> list[str]:
@@ -99,7 +106,7 @@ def tuning_study(output: Path, grid_dir: Path | None, jobs: int) -> str:
         for k, problem in enumerate(PROBLEMS):
             grid = grid_search(study, grid_dir, mover, problem)
             top = best(grid)
-            budget = len(grid) // 10
+            budget = max(4, len(grid) // 10)          # 4: a move and an adjoint per KS stage (small runs)
             print(f"{mover} {problem}: grid of {len(grid)} moves, best {top['min_skewness']:.4f}; "
                   f"tuning with {budget} solves", flush=True)
             result = tune(scene(problem, *mover_overrides(mover), f"tune.max_solves={budget}"))
@@ -144,19 +151,22 @@ def benchmark_overrides(refine: float, mover: str) -> list[str]:
 
 
 def timed_move(sc, setup) -> dict:
-    """Build the scene's mesh motion on the shared mesh and move it: figures and the time of both."""
+    """Build the scene's mesh motion on the shared mesh and move it: figures, and the time of
+    both as wall time and as this process's CPU time (on a shared machine the CPU time is the
+    fair measure: SuperLU and the kernels run on one thread, ``solver.blas_threads = 1``)."""
     size = float(np.linalg.norm(setup.prescribed, axis=1).max())
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     motion = MeshMotion(setup.mesh, sc, motion_size=size)
     try:
         result = motion.move(setup.prescribed)
     except NumericalError as err:
         q = err.diagnostic.get("quality", {})
-        return {"valid": False, "time_s": time.perf_counter() - t0, "moving": motion.moving.size,
+        return {"valid": False, "time_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+                "moving": motion.moving.size,
                 **{k: q.get(k, np.nan) for k in ("min_skewness", "min_area_change", "max_area_change")}}
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     q = moved_quality(type(setup)(setup.mesh, motion, setup.prescribed), result.displacement)
-    return {"valid": q.n_inverted == 0, "time_s": elapsed, "moving": motion.moving.size,
+    return {"valid": q.n_inverted == 0, "time_s": elapsed, "cpu_s": cpu, "moving": motion.moving.size,
             "min_skewness": q.min_skewness, "min_area_change": q.min_area_change,
             "max_area_change": q.max_area_change,
             "reach_m": None if motion.band is None else motion.band.reach}
@@ -166,27 +176,30 @@ BANDS = {"full": [], "auto": ["mover.band.mode=auto"],
          "auto x5": ["mover.band.mode=auto", "mover.band.motion_multiple=5"]}
 
 
-def band_study(output: Path, refine: list[float]) -> str:
+def band_study(output: Path, refine: list[float], problems: bool = True) -> str:
+    """The four problems first (unless ``problems`` is False), then the benchmark sizes from
+    small to large; ``band.csv`` is rewritten after every row, so a stopped run keeps what it
+    measured."""
     rows = []
+
+    def add(row):
+        rows.append(row)
+        write_csv(output / "band.csv", rows)
+        print(" ".join(f"{k}={_fmt(v, 4)}" for k, v in row.items()), flush=True)
+    for mover in MOVERS if problems else ():
+        for problem in PROBLEMS:
+            base = mover_overrides(mover)
+            setup = motion_setup(scene(problem, *base))
+            for name, extra in BANDS.items():
+                add({"case": problem, "refine": 1.0, "nodes": setup.mesh.n_nodes, "mover": mover, "band": name,
+                     **timed_move(scene(problem, *base, *extra), setup)})
     for r in refine:
         for mover in MOVERS:
             setup = motion_setup(tofsi.load_scene(SCENES / "foil_in_channel.toml", benchmark_overrides(r, mover)))
             for name, extra in BANDS.items():
                 sc = tofsi.load_scene(SCENES / "foil_in_channel.toml", benchmark_overrides(r, mover) + extra)
-                row = {"case": "rotation 8 deg", "refine": r, "nodes": setup.mesh.n_nodes, "mover": mover,
-                       "band": name, **timed_move(sc, setup)}
-                rows.append(row)
-                print(" ".join(f"{k}={_fmt(v, 4)}" for k, v in row.items()), flush=True)
-    for mover in MOVERS:
-        for problem in PROBLEMS:
-            base = mover_overrides(mover)
-            setup = motion_setup(scene(problem, *base))
-            for name, extra in BANDS.items():
-                row = {"case": problem, "refine": 1.0, "nodes": setup.mesh.n_nodes, "mover": mover, "band": name,
-                       **timed_move(scene(problem, *base, *extra), setup)}
-                rows.append(row)
-                print(" ".join(f"{k}={_fmt(v, 4)}" for k, v in row.items()), flush=True)
-    write_csv(output / "band.csv", rows)
+                add({"case": "rotation 8 deg", "refine": r, "nodes": setup.mesh.n_nodes, "mover": mover,
+                     "band": name, **timed_move(sc, setup)})
     return band_tables(rows)
 
 
@@ -204,14 +217,15 @@ def band_tables(rows: list[dict]) -> str:
         line = [row["mover"], row["band"], full["min_skewness"], row["min_skewness"], within,
                 f"{full['min_area_change']:.3f} / {full['max_area_change']:.3f}",
                 f"{row['min_area_change']:.3f} / {row['max_area_change']:.3f}",
-                f"{row['moving'] / full['moving']:.2f}", full["time_s"], row["time_s"],
-                f"{row['time_s'] / full['time_s']:.2f}"]
+                f"{row['moving'] / full['moving']:.2f}", full["cpu_s"], row["cpu_s"],
+                f"{row['cpu_s'] / full['cpu_s']:.2f}", f"{row['time_s'] / full['time_s']:.2f}"]
         if row["case"] == "rotation 8 deg":
             bench.append([int(row["nodes"]), *line])
         else:
             problems.append([row["case"], *line])
     head = ["mover", "band", "min skew full", "min skew band", "within 0.01", "area change full (min / max)",
-            "area change band", "band quads / full", "time full [s]", "time band [s]", "time ratio"]
+            "area change band", "band quads / full", "CPU full [s]", "CPU band [s]", "CPU ratio",
+            "wall ratio"]
     return ("Foil rotated by 8 degrees (benchmarks/movers.py), graded meshes refined:\n\n"
             + markdown_table(["nodes", *head], bench)
             + "\nThe four problems, graded meshes (scene defaults):\n\n" + markdown_table(["problem", *head], problems))
@@ -233,7 +247,9 @@ def main() -> None:
     parser.add_argument("study", choices=["tuning", "band", "all", "tables"],
                         help="tables: rebuild the tables from the CSV files of earlier runs")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes of the grid search")
-    parser.add_argument("--refine", type=float, nargs="+", default=REFINE)
+    parser.add_argument("--refine", type=float, nargs="*", default=REFINE,
+                        help="band: the benchmark's mesh refinements (none: skip the benchmark)")
+    parser.add_argument("--no-problems", action="store_true", help="band: only the benchmark meshes")
     parser.add_argument("--grid", type=Path, default=Path("results/mesh_motion_study/graded"),
                         help="folder of an earlier two-layer grid search (mesh_motion_study.py)")
     parser.add_argument("--output", type=Path, default=Path("results/tuning_band_study"))
@@ -250,7 +266,7 @@ def main() -> None:
     if args.study in ("tuning", "all"):
         parts["tuning"] = tuning_study(args.output, args.grid, args.jobs)
     if args.study in ("band", "all"):
-        parts["band"] = band_study(args.output, args.refine)
+        parts["band"] = band_study(args.output, args.refine, problems=not args.no_problems)
     if args.study == "tables":
         if (args.output / "tuning.csv").is_file():
             parts["tuning"] = tuning_table(read_csv(args.output / "tuning.csv"),

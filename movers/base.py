@@ -339,10 +339,12 @@ class Mover(ABC):
         report.converged = False
         report.message = message
         report.wall_time_s = time.perf_counter() - t0
-        diagnostic = {"report": report.as_dict(),
-                      "quality": quality_record(problem, x.reshape(-1, 2), np.nan)}
-        log.error("%s mover failed: %s", report.mover, message)
-        raise NumericalError(f"{report.mover} mover: {message}", diagnostic, state=x.reshape(-1, 2))
+        worst = quality_record(problem, x.reshape(-1, 2), np.nan)
+        diagnostic = {"report": report.as_dict(), "quality": worst}
+        where = (f"; worst element {worst['worst_element']} (skewness {worst['min_skewness']:.3g}) at "
+                 f"({worst['worst_location'][0]:.3g}, {worst['worst_location'][1]:.3g}) m")
+        log.info("%s mover failed: %s", report.mover, message)   # the caller reports the error
+        raise NumericalError(f"{report.mover} mover: {message}{where}", diagnostic, state=x.reshape(-1, 2))
 
     @staticmethod
     def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float,

@@ -252,6 +252,7 @@ class YeohMover(Mover):
             r = eqs.residual(Re, x, load1)
             norm = float(np.linalg.norm(r))
             history.append(norm)
+            log.info("yeoh Newton %d: |R| = %.3e", it, norm)
             if not np.isfinite(norm):
                 return None, None, history, "non-finite residual"
             forces = np.linalg.norm(assemble_vector(eqs.dofs, Re, x.size))   # reactions, and the

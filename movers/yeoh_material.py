@@ -27,7 +27,6 @@ import numpy as np
 
 from tofsi.fem.geometry import inverse_2x2
 
-VOIGT = ((0, 0), (1, 1), (0, 1))
 _I = np.array([0, 1, 0])            # first index of Voigt entry p
 _J = np.array([0, 1, 1])            # second index
 

@@ -29,3 +29,25 @@ def shipped_scene(request):
 def shipped_mesh(request):
     scene = load(request.param)
     return scene, build_mesh(scene.geometry, scene.mesh)
+
+
+@pytest.fixture
+def cli(monkeypatch, capsys):
+    """Run ``tofsi ARGS`` in this process (no interpreter start-up): ``cli(*args, cwd=DIR)``
+    returns an object with ``returncode``, ``stdout`` and ``stderr`` like ``subprocess.run``.
+    Log lines go to pytest's capture, not to ``stderr``: tests of logging use a subprocess."""
+    import logging
+    import types
+
+    from tofsi.cli import LOGGERS, main
+
+    def run(*args, cwd=None):
+        if cwd is not None:
+            monkeypatch.chdir(cwd)
+        capsys.readouterr()
+        status = main([str(a) for a in args])
+        out, err = capsys.readouterr()
+        return types.SimpleNamespace(returncode=status, stdout=out, stderr=err)
+    yield run
+    for name in LOGGERS:
+        logging.getLogger(name).setLevel(logging.NOTSET)

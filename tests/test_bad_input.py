@@ -31,6 +31,24 @@ CASES = [
     ("move", FOIL, ["mover.spring.increments=0", "mover.name=spring"], "mover.spring.increments"),
     ("optimize", OPT, ["design.initial=nowhere/design.npy"], "design.initial"),
     ("study", FOIL, ["--sweep", "mover.layers[0]=3:1:1"], "--sweep"),
+    # issue 14, item 1: --set name=. or .. would write into the working directory or above it
+    ("mesh", FOIL, ["name=."], "name"),
+    ("mesh", FOIL, ["name=.."], "name"),
+    # item 5: validation gaps that exited 0 (or crashed later)
+    ("optimize", OPT, ["design.beta=[]"], "design.beta"),                  # IndexError in optimize
+    ("solve", OPT, ["fluid.inlets=[[0.5, 1.5, 1.0]]"], "fluid.inlets[0]"),  # beyond the left side
+    ("solve", OPT, ["fluid.outlets=[[-0.25, 0.5, 1.0]]"], "fluid.outlets[0]"),
+    ("mesh", FOIL, ["mesh.h_min=5", "mesh.h_max=5"], "mesh.h_max"),          # a 9-quad mesh
+    ("mesh", FOIL, ["geometry.holes=[[0.1, 0.2, 0.1, 0.2]]"], "geometry.holes[0]"),   # no solid there
+    ("study", FOIL, ["--jobs", "0", "--sweep", "mover.layers[0]=1:2:1"], "--jobs"),
+    ("study", FOIL, ["--jobs", "-2", "--sweep", "mover.layers[0]=1:2:1"], "--jobs"),
+    # item 6: solve's design options
+    ("solve", OPT, ["--stage", "9"], "--stage"),
+    ("solve", FOIL, ["--design", "design.npy"], "design.initial"),         # no design region
+    # item 7: a motion that pushes the solid out of the channel, before moving
+    ("move", FOIL, ["deformation.translation=0.6"], "deformation.translation"),
+    ("move", FOIL, ["deformation.mode=rotation", "deformation.rotation_deg=90",
+                    "geometry.solids=[[0.2, 1.8, 0.45, 0.55]]"], "deformation.rotation_deg"),
 ]
 
 
@@ -72,3 +90,85 @@ def test_malformed_command_lines_exit_2_in_one_line(args, tmp_path):
     run = tofsi(args, tmp_path)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
     assert os.listdir(tmp_path) == []
+
+
+def write_design(path, kind, n):
+    import numpy as np
+    if kind == "outside [0, 1]":
+        np.save(path, np.linspace(-0.5, 1.5, n))
+    elif kind == "text":
+        path.write_text("0.2\n" * n)
+    elif kind == "wrong size":
+        np.save(path, np.full(n + 3, 0.2))
+    elif kind == "pickle":
+        np.save(path, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    elif kind == "directory":
+        path.mkdir()
+
+
+@pytest.mark.parametrize("kind,says", [("outside [0, 1]", "not clipped"), ("text", "not a NumPy .npy file"),
+                                       ("wrong size", "needs"), ("pickle", "not a NumPy .npy file"),
+                                       ("directory", "is a directory")])
+def test_a_bad_saved_design_exits_2_with_a_plain_message(kind, says, tmp_path):
+    """design.initial values outside [0, 1] were clipped silently; a text file got numpy's
+    advice about pickles. Now: one line naming design.initial, saying what is wrong."""
+    import tofsi as toolkit
+    n = toolkit.Problem(toolkit.load_scene(OPT, ["mesh.h_min=0.1", "mesh.h_max=0.1"])).n_design
+    write_design(tmp_path / "design.npy", kind, n)
+    before = sorted(os.listdir(tmp_path))
+    run = tofsi(["optimize", OPT, "--output", "out", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1",
+                     "--set", "design.initial=design.npy"], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "design.initial" in lines[0] and says in lines[0] and "allow_pickle" not in lines[0]
+    assert sorted(os.listdir(tmp_path)) == before
+
+
+def test_a_scene_with_a_byte_order_mark_is_read(tmp_path):
+    scene = tmp_path / "bom.toml"
+    scene.write_bytes(b"\xef\xbb\xbf" + open(FOIL, "rb").read())
+    run = tofsi(["mesh", str(scene), "--output", "out", "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.1"],
+                tmp_path)
+    assert run.returncode == 0, run.stderr
+
+
+def test_a_directory_given_as_the_scene_says_so(tmp_path):
+    (tmp_path / "scenes").mkdir()
+    run = tofsi(["mesh", "scenes", "--output", "out"], tmp_path)
+    assert run.returncode == 2 and "is a directory" in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1
+
+
+def test_a_thin_solid_is_accepted_with_a_warning(tmp_path):
+    run = tofsi(["mesh", FOIL, "--output", "out", "--set", "geometry.solids=[[0.75, 1.25, 0.5, 0.5000001]]",
+                 "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.1"], tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert "WARNING" in run.stderr and "geometry.solids[0]" in run.stderr and "thinner" in run.stderr
+
+
+def test_overlapping_solids_merge_into_their_union():
+    """Two overlapping rectangles mesh as their union: the solid area is the union's, 0.7 x 0.2
+    (the overlap counted once), and the result equals the single-rectangle scene's."""
+    import numpy as np
+    import tofsi as toolkit
+    from tofsi.channel import build_mesh
+    from tofsi.mesh import SOLID
+    from tofsi.quality import signed_area
+
+    def solid_area(solids):
+        scene = toolkit.load_scene(FOIL, [f"geometry.solids={solids}", "mesh.h_min=0.025", "mesh.h_max=0.05"])
+        mesh = build_mesh(scene.geometry, scene.mesh)
+        return signed_area(mesh.points, mesh.quads[mesh.region == SOLID]).sum()
+    assert solid_area("[[0.5, 1.0, 0.4, 0.6], [0.8, 1.2, 0.4, 0.6]]") == pytest.approx(0.7 * 0.2, rel=1e-12)
+    assert solid_area("[[0.5, 1.2, 0.4, 0.6]]") == pytest.approx(0.7 * 0.2, rel=1e-12)
+    assert np.isclose(solid_area("[[0.5, 1.0, 0.4, 0.6], [0.8, 1.2, 0.5, 0.7]]"), 0.1 + 0.08 - 0.02)
+
+
+@pytest.mark.parametrize("args", [["optimize", OPT, "--set", "design.beta=[]"], ["nonsense", FOIL]])
+def test_json_errors_on_stdout(args, tmp_path):
+    """--json on exit 2 prints {"error": ...} on stdout (usage errors too)."""
+    import json
+    run = tofsi([*args, "--json", "--output", "out"], tmp_path)
+    assert run.returncode == 2
+    payload = json.loads(run.stdout)
+    assert payload["exit_status"] == 2 and payload["error"] in run.stderr

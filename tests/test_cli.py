@@ -27,7 +27,7 @@ def test_mesh_json_reports_node_and_element_counts(name, tmp_path):
     mesh = build_mesh(scene.geometry, scene.mesh)
     assert figures["n_nodes"] == mesh.n_nodes == (mesh.nx + 1) * (mesh.ny + 1)
     assert figures["n_elements"] == mesh.n_elements == mesh.nx * mesh.ny
-    assert sorted(os.listdir(tmp_path)) == ["mesh.png", "mesh.vtu"]
+    assert sorted(os.listdir(tmp_path)) == ["mesh.png", "mesh.vtu", "run.json"]
 
 
 @pytest.mark.parametrize("override,key", [

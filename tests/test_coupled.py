@@ -29,17 +29,22 @@ def soft_model(method, *extra):
 
 def test_partitioned_and_monolithic_agree_and_newton_is_quadratic():
     part, rho = soft_model("partitioned")
-    mono, _ = soft_model("monolithic")
-    a, b = part.solve(rho), mono.solve(rho)
+    mono, _ = soft_model("monolithic", "coupled.quasi_newton=false")
+    quasi, _ = soft_model("monolithic")
+    a, b, c = part.solve(rho), mono.solve(rho), quasi.solve(rho)
     assert np.abs(a.x).max() > 1e-3                        # the mesh visibly moves
     for f in ("u", "x", "w"):
         ref = getattr(a, f)
         assert np.abs(getattr(b, f) - ref).max() <= 1e-8 * np.abs(ref).max()
+        assert np.abs(getattr(c, f) - ref).max() <= 1e-8 * np.abs(ref).max()
     r = [max(h["u"], h["x"], h["w"]) for h in b.reports["coupling"]["history"]]
     # quadratic: r_{k+1} <= C r_k^2 (C = 10, the residuals are scaled to order 1) above round-off
     steps = [(r[k], r[k + 1]) for k in range(len(r) - 1) if r[k] < 1e-2]
     assert steps and all(after <= 10 * before**2 + 1e-13 for before, after in steps), r
     assert r[-1] <= 1e-10
+    # quasi-Newton (shape derivatives of the first iterate): still converges, at least linearly fast
+    q = [max(h["u"], h["x"], h["w"]) for h in c.reports["coupling"]["history"]]
+    assert q[-1] <= 1e-10 and len(q) <= len(r) + 3, (q, r)
 
 
 def test_monolithic_refuses_a_path_dependent_mover():

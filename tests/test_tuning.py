@@ -1,8 +1,6 @@
 """Tuned stiffening: the soft quality's derivatives, the tuning gradient, the optimizer, ``tofsi tune``."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -182,12 +180,8 @@ def test_bad_tune_settings_are_input_errors():
 
 
 # ---- the command line ----------------------------------------------------------------------
-def tofsi(*args):
-    return subprocess.run([sys.executable, "-m", "tofsi.cli", *map(str, args)], capture_output=True, text=True)
-
-
-def test_tofsi_tune_json_outputs_and_set(tmp_path):
-    run = tofsi("tune", scene_path("beam_in_channel"), "--set", "mover.name=linear", *sum(
+def test_tofsi_tune_json_outputs_and_set(tmp_path, cli):
+    run = cli("tune", scene_path("beam_in_channel"), "--set", "mover.name=linear", *sum(
         (["--set", o] for o in COARSE), []), "--set", "tune.max_solves=8", "--set", "tune.layers=2",
         "--output", tmp_path, "--json")
     assert run.returncode == 0, run.stderr
@@ -195,18 +189,29 @@ def test_tofsi_tune_json_outputs_and_set(tmp_path):
     assert {"min_skewness", "min_area_change", "max_area_change", "layer_factors", "moves",
             "adjoints", "n_inverted", "wall_time_s"} <= set(figures)
     assert len(figures["layer_factors"]) == 2 and 1 <= figures["moves"] + figures["adjoints"] <= 8
-    assert {"tune.json", "tune_history.csv", "tuned_mesh.vtu", "tuned_mesh.png"} == {p.name for p in tmp_path.iterdir()}
-    history = json.loads((tmp_path / "tune.json").read_text())["history"]
-    assert max(h["min_skewness"] for h in history) == pytest.approx(figures["min_skewness"])
+    assert {"tune.json", "tune_history.csv", "tuned_mesh.vtu", "tuned_mesh.png", "run.json"} == \
+        {p.name for p in tmp_path.iterdir()}
+    saved = json.loads((tmp_path / "tune.json").read_text())
+    assert max(h["min_skewness"] for h in saved["history"]) == pytest.approx(figures["min_skewness"])
+    assert saved["settings"]["tune"]["max_solves"] == 8 and saved["settings"]["mover"]["name"] == "linear"
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["exit_status"] == 0 and "tune" in record["command_line"]
     assert "tuned factors" in run.stderr                 # the summary goes to stderr with --json
+    assert "tune: " in run.stderr                        # progress lines (not a terminal)
+    again = cli("tune", scene_path("beam_in_channel"), "--set", "mover.name=linear", "--output", tmp_path)
+    assert again.returncode == 2 and "--overwrite" in again.stderr   # another run's folder
 
 
-def test_tofsi_tune_bad_input_exits_2_and_numerical_failure_exits_3(tmp_path):
-    run = tofsi("tune", scene_path("beam_in_channel"), "--set", "tune.ks=-1", "--output", tmp_path / "a")
+def test_tofsi_tune_bad_input_exits_2_and_numerical_failure_exits_3(tmp_path, cli):
+    run = cli("tune", scene_path("beam_in_channel"), "--set", "tune.ks=-1", "--output", tmp_path / "a")
     assert run.returncode == 2 and "tune.ks" in run.stderr and "Traceback" not in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "a").exists()
-    run = tofsi("tune", scene_path("foil_in_channel"), "--set", "mover.name=yeoh", "--set",
-                "deformation.translation=0.6", "--set", "mover.yeoh.max_cutbacks=4", "--set",
-                "tune.max_solves=4", "--output", tmp_path / "b", "--json")
+    run = cli("tune", scene_path("foil_in_channel"), "--set", "mover.name=yeoh", "--set",
+              "deformation.translation=0.474", "--set", "mover.yeoh.max_cutbacks=4", "--set",
+              "tune.max_solves=4", "--output", tmp_path / "b", "--json")
     assert run.returncode == 3, run.stderr
     assert (tmp_path / "b" / "diagnostic.json").is_file() and json.loads(run.stdout)["converged"] is False
+    run = cli("tune", scene_path("foil_in_channel"), "--set", "deformation.translation=0.6",
+              "--output", tmp_path / "c")               # out of the channel: bad input, nothing built
+    assert run.returncode == 2 and "deformation.translation" in run.stderr
+    assert not (tmp_path / "c").exists()

@@ -15,7 +15,11 @@ components, in topological order, are solved one after the other:
   - monolithic: Newton on the assembled block Jacobian
     ``[[dR_a/dz_b]]`` (every block of the cycle needs a residual form), with
     a backtracking line search on the largest block residual scaled by the
-    block's force scale.
+    block's force scale. With ``quasi_newton`` the couplings a block marks as
+    slow to build and slow to change (``FieldBlock.slow_couplings``: the shape
+    derivatives with respect to the mesh motion) are built at the first
+    iterate and kept for the rest of the solve; the converged state's exact
+    couplings are built once, for the adjoint.
 
 Both report their history and raise :class:`~tofsi.errors.NumericalError`
 when they do not converge. The system also gives the split of a stacked
@@ -50,6 +54,7 @@ class CouplingSettings:
     max_iter: int = 60
     relaxation: float = 0.5
     relax: str | None = None
+    quasi_newton: bool = True
 
 
 class CoupledLinearization:
@@ -89,7 +94,7 @@ class BlockSystem:
                 if explicit:
                     raise InputError("coupled.method", "monolithic",
                                      f"field {explicit[0]!r} is an explicit (path-dependent) map "
-                                     "without a residual form; use 'partitioned'")
+                                     "without a residual form; use 'partitioned' or 'auto'")
         sizes = [b.size for b in self.blocks]
         self.offsets = dict(zip(self.names, np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)))
         self.size = int(sum(sizes))
@@ -127,6 +132,13 @@ class BlockSystem:
     def cycles(self) -> list[tuple[str, ...]]:
         return [c for c in self.components if len(c) > 1]
 
+    def method_for(self, comp) -> str:
+        """How a cycle is solved: the settings' method; ``auto`` is monolithic when every block
+        of the cycle has a residual form, partitioned otherwise."""
+        if self.settings.method != "auto":
+            return self.settings.method
+        return "monolithic" if all(self.by_name[n].has_residual for n in comp) else "partitioned"
+
     def relaxed_field(self, comp: tuple[str, ...]) -> str:
         """The field a partitioned sweep over ``comp`` relaxes (and measures convergence on)."""
         return self.settings.relax if self.settings.relax in comp else comp[-1]
@@ -145,12 +157,14 @@ class BlockSystem:
             start += size
         return out
 
-    def jacobian(self, lins: dict[str, Linearization], names) -> sp.csr_matrix:
-        """The block Jacobian ``[[dR_a/dz_b]]`` of the fields ``names`` from their linearizations."""
+    def jacobian(self, lins: dict[str, Linearization], names, kept: dict | None = None) -> sp.csr_matrix:
+        """The block Jacobian ``[[dR_a/dz_b]]`` of the fields ``names`` from their linearizations
+        (``kept``: couplings ``(a, b) -> matrix`` to use instead, quasi-Newton)."""
+        kept = kept or {}
         rows = []
         for a in names:
             lin = lins[a]
-            rows.append([lin.matrix() if b == a else
+            rows.append([lin.matrix() if b == a else kept[(a, b)] if (a, b) in kept else
                          (lin.coupling(b) if b in self.by_name[a].inputs else None) for b in names])
         return sp.bmat(rows, format="csr")
 
@@ -176,7 +190,7 @@ class BlockSystem:
         for comp in self.components:
             if len(comp) == 1:
                 fields[comp[0]] = self._solve_block(comp[0], fields, state, progress)
-            elif self.settings.method == "monolithic":
+            elif self.method_for(comp) == "monolithic":
                 self._monolithic(comp, fields, state)
             else:
                 self._partitioned(comp, fields, state, progress)
@@ -244,7 +258,7 @@ class BlockSystem:
         perm = self.ordering(comp)
         solver = RecyclingSolver(lambda A: DirectSolver(A, perm=perm))
         blocks = [self.by_name[n] for n in comp]
-        scales, history = None, []
+        scales, history, kept = None, [], None
 
         def merit(values: dict) -> tuple[float, list[float]]:
             norms = [float(np.linalg.norm(b.residual(values, rho, params))) / sc
@@ -262,12 +276,15 @@ class BlockSystem:
                      ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms)))
             if max(norms) <= s.tol:
                 state.linearizations.update(lins)
-                state.coupled = CoupledLinearization(self, comp, lins, solver)
+                state.coupled[comp] = CoupledLinearization(self, comp, lins, solver)
                 state.reports["coupling"] = {"method": "monolithic", "history": history}
                 return
             if it == s.max_iter:
                 break
-            dz = self.split(solver.solve(self.jacobian(lins, comp), -np.concatenate(R)), comp)
+            if kept is None and s.quasi_newton:         # the slow couplings of the first iterate
+                kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
+                        for o in getattr(b, "slow_couplings", ()) if o in comp}
+            dz = self.split(solver.solve(self.jacobian(lins, comp, kept), -np.concatenate(R)), comp)
 
             def trial(alpha):
                 values = dict(fields)

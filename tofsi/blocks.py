@@ -53,13 +53,16 @@ class Continuation:
     penalty : SIMP exponent ``p`` of ``E(rho) = Emin + rho^p (E0 - Emin)``
     brinkman_q : convexity ``q`` of the Brinkman interpolation ``alpha(rho)``
     beta : projection sharpness of the design map (recorded with the state)
-    load_exponent : weight ``rho^k`` of the stress-divergence fluid load
+    load_exponent : weight ``rho^k`` of the solid phase in the fluid load
+    coupling : ``"one-way"`` to solve a two-way problem one-way (a continuation
+        stage); ``""``: as the problem is
     """
 
     penalty: float = 3.0
     brinkman_q: float = 0.1
     beta: float = 0.0
     load_exponent: float = 1.0
+    coupling: str = ""
 
 
 class Linearization(ABC):
@@ -72,6 +75,13 @@ class Linearization(ABC):
     def __init__(self, block: "FieldBlock", fields: Fields, rho, params: Continuation):
         self.block, self.rho, self.params = block, rho, params
         self.fields = {k: (None if v is None else np.array(v, dtype=float)) for k, v in fields.items()}
+        self._kept: dict = {}
+
+    def kept(self, key, build: Callable):
+        """``build()`` once per ``key`` (a linearization belongs to one point: nothing goes stale)."""
+        if key not in self._kept:
+            self._kept[key] = build()
+        return self._kept[key]
 
     @property
     def value(self) -> np.ndarray:
@@ -155,6 +165,7 @@ class FieldBlock(ABC):
     symbol: str = ""                   # the residual's letter in reports (F, S, D); default the name
     report_name: str = ""
     has_residual: bool = True          # False: an explicit (path-dependent) map
+    slow_couplings: tuple[str, ...] = ()   # couplings a quasi-Newton solve may keep fixed
 
     @property
     @abstractmethod
@@ -204,7 +215,7 @@ class State:
     """A solved coupled state: the fields (absent ones are None) and what produced them.
 
     linearizations : each block's linearization at the state (the adjoint's input)
-    coupled : the monolithic Newton's linearization of the whole system, if any
+    coupled : the monolithic Newton's linearization of each cycle it solved, by its fields
     """
 
     rho: np.ndarray
@@ -213,7 +224,7 @@ class State:
     converged: bool = False
     reports: dict = field(default_factory=dict)
     linearizations: dict = field(default_factory=dict)
-    coupled: object = None
+    coupled: dict = field(default_factory=dict)
 
     @property
     def w(self) -> np.ndarray | None:

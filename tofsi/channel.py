@@ -15,12 +15,8 @@ def inside(points: np.ndarray, rect) -> np.ndarray:
     return (points[:, 0] > x0) & (points[:, 0] < x1) & (points[:, 1] > y0) & (points[:, 1] < y1)
 
 
-def build_mesh(geometry, settings) -> StructuredQuadMesh:
-    """Mesh of ``geometry`` (a :class:`tofsi.scene.Geometry`) with ``settings`` (MeshSettings).
-
-    Element tags by centre: design rectangle -> DESIGN, solids -> SOLID,
-    holes -> FLUID, in that order of precedence (later wins).
-    """
+def mesh_axes(geometry, settings) -> tuple[np.ndarray, np.ndarray]:
+    """The node coordinates along x and y of the scene's mesh (cheap: no mesh is built)."""
     rects = list(geometry.solids) + list(geometry.holes) + ([geometry.design] if geometry.design else [])
     xs = graded_axis(geometry.length, [v for r in rects for v in r[:2]],
                      [tuple(r[:2]) for r in geometry.solids],
@@ -28,6 +24,16 @@ def build_mesh(geometry, settings) -> StructuredQuadMesh:
     ys = graded_axis(geometry.height, [v for r in rects for v in r[2:]],
                      [tuple(r[2:]) for r in geometry.solids],
                      settings.h_min, settings.h_max, settings.growth)
+    return xs, ys
+
+
+def build_mesh(geometry, settings) -> StructuredQuadMesh:
+    """Mesh of ``geometry`` (a :class:`tofsi.scene.Geometry`) with ``settings`` (MeshSettings).
+
+    Element tags by centre: design rectangle -> DESIGN, solids -> SOLID,
+    holes -> FLUID, in that order of precedence (later wins).
+    """
+    xs, ys = mesh_axes(geometry, settings)
     n_elements = (len(xs) - 1) * (len(ys) - 1)
     if n_elements > settings.max_elements:
         raise InputError("mesh.h_min", settings.h_min,

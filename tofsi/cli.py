@@ -1,97 +1,207 @@
 """The ``tofsi`` command line: one subcommand per job.
 
-Exit status: 0 success, 2 bad input (one line naming the key, the value and
-what is allowed), 3 numerical failure (a diagnostic file is written to the
-output folder), 130 interrupted.
+Exit status: 0 success, 1 a failed gradient check, 2 bad input (one line
+naming the key, the value and what is allowed; nothing is written), 3
+numerical failure (a diagnostic file is written to the output folder), 130
+interrupted (Ctrl-C), 143 terminated (SIGTERM, handled like Ctrl-C).
+
+Before any computation the output folder is checked: it must be writable,
+and a fresh run refuses a folder holding another run's files unless
+``--overwrite`` (``--resume`` continues the run in it). Every folder a run
+writes gets a ``run.json`` with the run's provenance (:mod:`tofsi.provenance`).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import logging
+import signal
 import sys
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
+import tofsi
 from tofsi.commands.context import RunContext
+from tofsi.commands.hints import hint
 from tofsi.errors import InputError, NumericalError
+from tofsi.memory import check as check_memory
 from tofsi.output import default_output, to_json, write_json
+from tofsi.provenance import run_record
+from tofsi.run_folder import RunFolder
 from tofsi.scene import load_scene
+from tofsi.threads import configure as configure_linear_algebra, mpi_rank
 
 COMMANDS = {
     "mesh": "build the scene's mesh; print sizes; write the mesh and a picture",
     "move": "mesh-motion study: move the mesh with the scene's mover; report quality",
     "optimize": "topology optimization with NLopt (MMA or CCSAQ)",
     "check-gradients": "adjoint versus finite differences, block by block and total",
-    "solve": "forward analysis of the scene's design with the effects the scene enables",
+    "solve": "forward analysis of the scene's design (or a saved one) with the effects the scene enables",
     "study": "parametric sweep (stiffening factors, A20, kappa, increments, mesh size) to a CSV and a plot",
     "tune": "stiffening factors tuned by gradients (NLopt) for the best mesh quality of the scene's motion",
 }
+QUALITY = ("min_skewness", "n_inverted", "min_area_change", "max_area_change")
+LOGGERS = ("tofsi", "movers", "adjoint")          # -v raises only these; third parties stay quiet
+
+
+class UsageError(Exception):
+    """A malformed command line (argparse's complaint)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the run stops where it is, its checkpoint stays."""
 
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):                      # one line, status 2, no usage dump
-        print(f"tofsi: error: {message} (see tofsi --help)", file=sys.stderr)
-        sys.exit(2)
+        raise UsageError(f"{message} (see tofsi --help)")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="tofsi", description="Topology optimization of fluid-structure "
                      "interaction on structured quadrilateral meshes.")
-    parser.add_argument("--version", action="version", version="tofsi 0.1.0")
+    parser.add_argument("--version", action="version", version=f"tofsi {tofsi.__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
     for name, help_text in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.add_argument("scene", help="scene file (TOML), e.g. examples/scenes/foil_in_channel.toml")
         p.add_argument("--output", type=Path, default=None,
                        help="output folder (default results/<scene name>/)")
+        p.add_argument("--overwrite", action="store_true",
+                       help="replace the files of a previous run in the output folder")
         p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                        help="override a scene value by dotted key, e.g. --set mover.name=spring")
         p.add_argument("--json", action="store_true",
                        help="print one JSON object with the run's figures on stdout")
-        p.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+        p.add_argument("-v", "--verbose", action="count", default=0,
+                       help="more log output (-v: solver iterations and residuals, -vv: debug)")
         p.add_argument("-q", "--quiet", action="store_true", help="no progress or summary text")
+        p.add_argument("--max-memory", type=float, default=None, metavar="GB",
+                       help="refuse a run estimated to need more memory (default: solver.max_memory_gb, "
+                            "else the memory available now)")
         if name == "study":
             p.add_argument("--sweep", action="append", default=[], metavar="KEY=RANGE",
                            help="KEY=START:STOP:STEP, KEY=START:STOP:*FACTOR or KEY=V1,V2,... "
                                 "(repeat for a grid; KEY[i] sweeps one list entry)")
-            p.add_argument("--jobs", type=int, default=1, help="worker processes")
+            p.add_argument("--jobs", type=int, default=1, help="worker processes (1 or more)")
         if name == "optimize":
             p.add_argument("--resume", action="store_true",
                            help="continue exactly where an interrupted run in --output stopped")
+        if name == "solve":
+            p.add_argument("--design", type=Path, default=None, metavar="FILE",
+                           help="a saved design (design.npy of tofsi optimize) to analyse; "
+                                "the same as --set design.initial=FILE")
+            p.add_argument("--stage", default="0", metavar="N|last",
+                           help="continuation stage whose projection, SIMP penalty and Brinkman q "
+                                "apply (default 0: optimize's first iteration from this design; "
+                                "result.json's stage: that run's final figures; last: the "
+                                "schedule's last stage)")
         if name == "check-gradients":
             p.add_argument("--seed", type=int, default=0, help="seed of the random design and directions")
     return parser
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
-                        format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
-    ctx = None
+def configure_logging(verbose: int) -> None:
+    """Warnings by default; ``-v`` shows tofsi's solver iterations, ``-vv`` its debug lines.
+    Other libraries (matplotlib, PIL, ...) stay at warnings whatever ``-v`` says."""
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    for name in LOGGERS:
+        logging.getLogger(name).setLevel(level)
+
+
+@contextmanager
+def sigterm_as_interrupt():
+    """Within the block SIGTERM raises :class:`Terminated` (a KeyboardInterrupt)."""
+    def handler(signum, frame):
+        raise Terminated()
     try:
-        scene = load_scene(args.scene, args.set)
-        ctx = RunContext(output=args.output or default_output(scene.name), json=args.json,
-                         quiet=args.quiet)
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:                             # not the main thread: leave signals alone
+        previous = None
+    try:
+        yield
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def scene_overrides(args) -> list[str]:
+    """``--set`` values, plus ``--design FILE`` as ``design.initial``."""
+    overrides = list(args.set)
+    if getattr(args, "design", None) is not None:
+        overrides.append(f"design.initial={json.dumps(str(args.design))}")
+    return overrides
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except UsageError as err:
+        return _error(f"tofsi: error: {err}", {"error": str(err)}, "--json" in argv, 2)
+    configure_logging(args.verbose)
+    with sigterm_as_interrupt():
+        return _run(args, argv)
+
+
+def _error(line: str, payload: dict, as_json: bool, status: int) -> int:
+    print(line, file=sys.stderr)
+    if as_json:
+        print(to_json({**payload, "exit_status": status}))
+    return status
+
+
+def _run(args, argv) -> int:
+    ctx, scene = None, None
+    try:
+        overrides = scene_overrides(args)
+        scene = load_scene(args.scene, overrides)
+        if args.command != "mesh":
+            check_memory(scene, args.command, args.max_memory)     # before any factorization
+            configure_linear_algebra(scene.solver)
+        if mpi_rank() > 0:                     # mpiexec: rank 0 writes and prints
+            args.output, args.json, args.quiet = Path(tempfile.mkdtemp()), False, True
+        folder = RunFolder(args.output or default_output(scene.name), program=f"tofsi {args.command}",
+                           overwrite=args.overwrite, resume=getattr(args, "resume", False)).check()
+        ctx = RunContext(output=folder.path, json=args.json, quiet=args.quiet, folder=folder,
+                         record=run_record(scene, overrides, ["tofsi", *argv], f"tofsi {args.command}"))
         command = importlib.import_module(f"tofsi.commands.{args.command.replace('-', '_')}")
         figures = command.run(scene, args, ctx)
     except InputError as err:
-        print(f"tofsi: error: {err}", file=sys.stderr)
-        return 2
+        if ctx is not None:
+            ctx.finish(2)
+        return _error(f"tofsi: error: {err}", {"error": str(err), "key": err.key}, args.json, 2)
     except NumericalError as err:
-        path = ctx.path("diagnostic.json") if ctx else Path("diagnostic.json")
-        write_json(path, {"error": str(err), **err.diagnostic})
-        print(f"tofsi: numerical failure: {err} (diagnostic: {path})", file=sys.stderr)
-        if args.json:
-            print(to_json({"error": str(err), "converged": False, "diagnostic": str(path)}))
-        return 3
-    except KeyboardInterrupt:
-        hint = " (resume with --resume)" if args.command == "optimize" else ""
-        print(f"tofsi: interrupted{hint}", file=sys.stderr)
-        return 130
+        path = None
+        if ctx is not None:                        # the diagnostic goes beside the results
+            ctx.begin()
+            path = ctx.path("diagnostic.json")
+            write_json(path, {"error": str(err), **err.diagnostic})
+            ctx.extra.setdefault("stop_reason", "numerical failure" if args.command == "optimize" else None)
+            ctx.finish(3)
+        extra = hint(err, scene, args.command)
+        quality = err.diagnostic.get("quality", {})
+        payload = {"error": str(err), "converged": False, "diagnostic": str(path),
+                   **{k: quality[k] for k in QUALITY if k in quality}}
+        return _error(f"tofsi: numerical failure: {err}{'; ' + extra if extra else ''} (diagnostic: {path})",
+                      payload, args.json, 3)
+    except KeyboardInterrupt as err:
+        status = 143 if isinstance(err, Terminated) else 130
+        if ctx is not None:
+            ctx.extra["stop_reason"] = "interrupted" if args.command == "optimize" else None
+            ctx.finish(status)
+        how = "terminated" if status == 143 else "interrupted"
+        resume = " (resume with --resume)" if args.command == "optimize" and ctx and ctx.folder.begun else ""
+        return _error(f"tofsi: {how}{resume}", {"error": how}, args.json, status)
+    ctx.finish(ctx.exit_status)
     if args.json:
         print(to_json(figures))
-    return getattr(ctx, "exit_status", 0)
+    return ctx.exit_status
 
 
 if __name__ == "__main__":

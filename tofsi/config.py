@@ -28,13 +28,23 @@ from tofsi.errors import InputError
 
 def option(default: Any = dataclasses.MISSING, *, gt=None, ge=None, lt=None, le=None,
            choices=None, length=None, doc: str = ""):
-    """A dataclass field with its allowed range (applied to every element of a list)."""
+    """A dataclass field with its allowed range (applied to every element of a list).
+
+    choices : the allowed values, or a function returning them (a registry read when
+    a table is validated, e.g. the objectives)
+    """
     meta = dict(gt=gt, ge=ge, lt=lt, le=le, choices=choices, length=length, doc=doc)
     if dataclasses.is_dataclass(default):
         return dataclasses.field(default_factory=lambda: default, metadata=meta)
     if isinstance(default, (list, dict)):
         raise TypeError("use a tuple default for list options")
     return dataclasses.field(default=default, metadata=meta)
+
+
+def choices_of(meta: dict) -> tuple:
+    """The allowed values of an option (calling a registry function if given one)."""
+    choices = meta.get("choices")
+    return tuple(choices()) if callable(choices) else tuple(choices or ())
 
 
 def join(path: str, key: str | int) -> str:
@@ -46,7 +56,7 @@ def join(path: str, key: str | int) -> str:
 def describe_range(meta: dict) -> str:
     """Human-readable statement of the allowed values, e.g. ``0 < value <= 1``."""
     if meta.get("choices"):
-        return "allowed: one of " + ", ".join(repr(c) for c in meta["choices"])
+        return "allowed: one of " + ", ".join(repr(c) for c in choices_of(meta))
     lower = f"{meta['gt']} < " if meta.get("gt") is not None else (
         f"{meta['ge']} <= " if meta.get("ge") is not None else "")
     upper = f" < {meta['lt']}" if meta.get("lt") is not None else (
@@ -105,7 +115,7 @@ def coerce(tp: Any, value: Any, key: str, meta: dict) -> Any:
     if tp is str:
         if not isinstance(value, str):
             raise InputError(key, value, "expected a string")
-        if meta.get("choices") and value not in meta["choices"]:
+        if meta.get("choices") and value not in choices_of(meta):
             raise InputError(key, value, describe_range(meta))
         return value
     raise TypeError(f"unsupported option type {tp!r} at {key}")

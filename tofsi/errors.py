@@ -33,6 +33,9 @@ class InputError(TofsiError, ValueError):
             shown = shown[:57] + "..."
         return f"{self.key} = {shown}: {self.allowed}"
 
+    def __reduce__(self):                      # picklable (errors of study worker processes)
+        return (InputError, (self.key, self.value, self.allowed))
+
     def under(self, prefix: str) -> "InputError":
         """The same error with its key qualified by a parent table name."""
         key = f"{prefix}.{self.key}" if prefix and self.key else (prefix or self.key)
@@ -48,3 +51,6 @@ class NumericalError(TofsiError, RuntimeError):
         self.diagnostic = dict(diagnostic or {})
         self.state = state        # the last state reached (e.g. a mesh displacement), if any
         super().__init__(message)
+
+    def __reduce__(self):                      # picklable; the state stays behind
+        return (NumericalError, (str(self), self.diagnostic))

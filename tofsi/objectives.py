@@ -2,9 +2,10 @@
 
 Each quantity ``q(u, x, w, rho)`` gives its value and its partials keyed by
 field name, ``{"u": dq/du, "x": dq/dx, "w": dq/dw, "rho": dq/drho}`` (missing
-keys are zero), for the adjoint. Shape partials come from the complex step
-through the same kernels as the values. Continuation parameters (the
-Brinkman q, the load exponent) are the state's (``state.params``).
+keys are zero), for the adjoint. Shape partials are analytic
+(:mod:`tofsi.physics.fluid_shape`), the pressure drop's by the complex step.
+Continuation parameters (the Brinkman q, the load exponent) are the state's
+(``state.params``).
 
 * ``compliance``: ``f(w, x, rho) . u`` [J/m] -- the work of the fluid load;
 * ``dissipation``: Borrvall & Petersson's (2003) functional
@@ -24,43 +25,36 @@ from __future__ import annotations
 import numpy as np
 
 from tofsi.fem.assembly import assemble_vector, element_dofs
-from tofsi.fem.complex_step import COMPLEX_STEP, corner_derivatives
+from tofsi.fem.complex_step import COMPLEX_STEP
 from tofsi.fem.geometry import physical_gradients
 from tofsi.physics.fluid_kernel import N2, POINTS, WEIGHTS
+from tofsi.physics.fluid_shape import dissipation_shape
 from tofsi.quality import signed_area
-
-
-def _corner_partial(fn, Xe: np.ndarray, quads: np.ndarray, n_nodes: int) -> np.ndarray:
-    """``d/dx sum_e fn(Xe)_e`` (2n,) for a per-element function of the corners (complex step)."""
-    return assemble_vector(element_dofs(quads, 2), corner_derivatives(fn, Xe), 2 * n_nodes)
 
 
 class Compliance:
     """The work of the fluid load on the structure's displacement, ``f(w, x, rho) . u`` [J/m]."""
 
-    name = "compliance"
+    name, needs = "compliance", "structure"
 
     def value(self, model, state) -> float:
         return float(model.structure.load(state.w, state.mesh_displacement, state.rho, state.params) @ state.u)
 
     def partials(self, model, state) -> dict:
-        st, X, rho, params = model.structure, state.mesh_displacement, state.rho, state.params
-        B = st.load_operators(X)
-        ue, we = state.u[st.dofs], state.w[model.flow.dofs]
-        psi = st.weight(rho, params)
-        out = {"u": st.load(state.w, X, rho, params, B),
-               "w": assemble_vector(model.flow.dofs, np.einsum("eab,ea->eb", B, ue) * psi[:, None],
-                                    model.flow.size),
-               "rho": np.einsum("ea,eab,eb->e", ue, B, we) * st.weight_derivative(rho, params)}
-        if model.two_way:
-            out["x"] = -(st.shape_partial(state.w, X, rho, params).T @ state.u)
+        st, X, rho, params, u = model.structure, state.mesh_displacement, state.rho, state.params, state.u
+        force = st.force
+        out = {"u": st.load(state.w, X, rho, params),
+               "w": force.fluid_partial_transpose(u, state.w, X, rho, params),
+               "rho": np.einsum("ea,ea->e", u[st.dofs], force.density_vectors(state.w, X, rho, params))}
+        if state.x is not None:                       # the flow saw the moved mesh
+            out["x"] = force.shape_partial_transpose(u, state.w, X, rho, params)
         return out
 
 
 class Dissipation:
     """Borrvall & Petersson's functional ``1/2 int (mu grad v : grad v + alpha |v|^2)`` [W/m]."""
 
-    name = "dissipation"
+    name, needs = "dissipation", "fluid"
 
     @staticmethod
     def element_values(flow, Xe, w, rho, params=None) -> np.ndarray:
@@ -95,16 +89,17 @@ class Dissipation:
         v = np.matmul(N2, ve)
         out = {"w": assemble_vector(flow.dofs, ge, flow.size),
                "rho": 0.5 * flow.brinkman(params).derivative(rho) * np.sum(wd * np.sum(v * v, axis=-1), axis=1)}
-        if model.two_way:
-            out["x"] = _corner_partial(lambda Xc: self.element_values(flow, Xc, state.w, rho, params), Xe,
-                                       model.mesh.quads, model.mesh.n_nodes)
+        if state.x is not None:                       # the flow saw the moved mesh
+            out["x"] = assemble_vector(element_dofs(model.mesh.quads, 2),
+                                       dissipation_shape(Xe, ve, flow.alpha(rho, params), flow.settings.viscosity),
+                                       2 * model.mesh.n_nodes)
         return out
 
 
 class PressureDrop:
     """Mean inlet pressure minus mean outlet pressure [Pa]."""
 
-    name = "pressure-drop"
+    name, needs = "pressure-drop", "fluid"
 
     @staticmethod
     def _weights(flow, P) -> np.ndarray:
@@ -129,7 +124,7 @@ class PressureDrop:
         g = np.zeros(flow.size)
         g[flow.n_velocity:] = self._weights(flow, P)
         out = {"w": g}
-        if model.two_way:
+        if state.x is not None:                       # the flow saw the moved mesh
             p = state.w[flow.n_velocity:]
             gx = np.zeros_like(P)
             for k in np.union1d(flow.mesh.side_nodes(flow.inlet), flow.mesh.side_nodes(flow.outlet)):

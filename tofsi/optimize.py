@@ -32,8 +32,10 @@ import numpy as np
 
 from tofsi.blocks import State
 from tofsi.coupled import continuation
-from tofsi.errors import InputError
+from tofsi import quality
+from tofsi.errors import InputError, NumericalError
 from tofsi.output import atomic_write, write_csv, write_json
+from tofsi.resume import check_resume, identity, read_checkpoint
 
 log = logging.getLogger(__name__)
 ALGORITHMS = {"MMA": nlopt.LD_MMA, "CCSAQ": nlopt.LD_CCSAQ}
@@ -54,8 +56,29 @@ class Iteration:
     penalty: float
     brinkman_q: float
     time_s: float
+    coupling: str = ""            # one-way stage of a two-way problem, or as the scene
+    min_skewness: float = float("nan")        # of the moved fluid mesh (NaN: the mesh did not move)
+    min_area_change: float = float("nan")
+    max_area_change: float = float("nan")
 
 
+
+
+def stop_reason(result: int) -> str:
+    """Why NLopt ended a stage: ``max_iter`` (the evaluation budget) or NLopt's own reason."""
+    if result == nlopt.MAXEVAL_REACHED:
+        return "max_iter"
+    names = {v: k.lower() for k, v in vars(nlopt).items() if k.isupper() and k.endswith(("REACHED", "LIMITED"))}
+    return f"nlopt {names.get(result, result)}"
+
+
+def mesh_quality(mesh, state) -> tuple[float, float, float]:
+    """``(min skewness, min area change, max area change)`` of the fluid mesh a state's flow
+    was solved on; NaN where the mesh did not move (one-way)."""
+    if state.x is None:
+        return (float("nan"),) * 3
+    q = quality.summary(mesh.points, mesh.points + state.mesh_displacement, mesh.quads)
+    return q.min_skewness, q.min_area_change, q.max_area_change
 
 
 def non_discreteness(rho: np.ndarray) -> float:
@@ -80,6 +103,7 @@ class Optimizer:
         self._replay: list[dict] = []        # stored evaluations of this stage, in order
         self._stage_log: list[dict] = []     # evaluations of the running stage (checkpointed)
         self._last = None                    # (gamma, entry) of the last evaluation
+        self.stop_reason = "max_iter"        # why the last stage ended (see stop_reason())
         self._t0 = time.perf_counter()
 
     @property
@@ -107,11 +131,16 @@ class Optimizer:
 
     def _compute(self, gamma: np.ndarray) -> dict:
         p = self.problem
-        f, df = p.evaluate(gamma)
-        g, dg = p.constraints(gamma)
+        try:
+            f, df = p.evaluate(gamma)
+            g, dg = p.constraints(gamma)
+        except NumericalError as err:          # the last checkpoint holds the iterations before
+            raise NumericalError(f"design iteration {len(self.history)}: {err}",
+                                 {"iteration": len(self.history), **err.diagnostic}, state=err.state) from err
         state = p.solve(gamma)
         return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
-                "volume": p.volume_fraction.value(p.model, state), "state": state}
+                "volume": p.volume_fraction.value(p.model, state), "quality": mesh_quality(p.model.mesh, state),
+                "state": state}
 
     def _record(self, gamma, entry, stage, change) -> None:
         if self.scale is None:                  # each stage scales by its first objective value
@@ -119,7 +148,8 @@ class Optimizer:
         params = continuation(self.scene, stage)
         it = Iteration(len(self.history), stage, float(entry["f"]), float(entry["f"] / self.scale),
                        float(entry["volume"]), float(entry["g"][0]), change, params.beta,
-                       params.penalty, params.brinkman_q, time.perf_counter() - self._t0)
+                       params.penalty, params.brinkman_q, time.perf_counter() - self._t0,
+                       params.coupling or self.scene.effects.coupling, *entry["quality"])
         self.history.append(it)
         if "state" in entry:                           # computed now (not replayed): save
             self._checkpoint(stage, entry["state"])
@@ -138,10 +168,12 @@ class Optimizer:
             for key in ("gamma", "df", "g", "dg"):
                 log_arrays[f"e{k}_{key}"] = e[key]
             log_arrays[f"e{k}_f"] = np.array([e["f"], e["volume"]])
+            log_arrays[f"e{k}_quality"] = np.array(e["quality"])
         fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
         meta = {"scene": self.scene.name, "stage": stage, "n_stage_evaluations": len(self._stage_log),
                 "scale": self.scale, "history": [asdict(h) for h in self.history],
-                "stage_start": self._stage_start.tolist()}
+                "stage_start": self._stage_start.tolist(),
+                "identity": identity(self.scene, self.problem.model.mesh, self.problem.n_design)}
 
         def write(tmp):
             with open(tmp, "wb") as fh:
@@ -149,18 +181,14 @@ class Optimizer:
         atomic_write(self.checkpoint_path, write)
 
     def _load_checkpoint(self):
-        if not self.checkpoint_path.is_file():
-            raise InputError("--resume", str(self.checkpoint_path), "no checkpoint to resume from")
-        with np.load(self.checkpoint_path) as npz:          # fresh, aligned copies: vectorized
-            data = {k: np.array(npz[k], copy=True) for k in npz.files}   # kernels round by alignment
-        meta = json.loads(str(data["meta"]))
-        if meta["scene"] != self.scene.name:
-            raise InputError("--resume", meta["scene"], f"the checkpoint is of another scene, not {self.scene.name}")
+        meta, data = read_checkpoint(self.checkpoint_path)     # same scene and mesh, or InputError
+        check_resume(meta, data, self.problem, self.checkpoint_path)
         replay = []
         for k in range(meta["n_stage_evaluations"]):
             f, volume = data[f"e{k}_f"]
             replay.append({"gamma": data[f"e{k}_gamma"], "df": data[f"e{k}_df"], "g": data[f"e{k}_g"],
-                           "dg": data[f"e{k}_dg"], "f": float(f), "volume": float(volume)})
+                           "dg": data[f"e{k}_dg"], "f": float(f), "volume": float(volume),
+                           "quality": tuple(float(q) for q in data.get(f"e{k}_quality", [np.nan] * 3))})
         state = State(rho=data["rho"], converged=True,
                       fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})
         return meta, replay, state
@@ -178,13 +206,13 @@ class Optimizer:
             self.history = [Iteration(**h) for h in meta["history"][:skip]]
             gamma = np.asarray(meta["stage_start"], dtype=float)
             p.set_guess(state)
-        n_stages = max(len(d.beta), len(d.penalty), len(d.brinkman_q), 1)
+        n_stages = d.n_stages
         for stage in range(first_stage, n_stages):
             remaining = s.max_iter - len(self.history)
             if remaining <= 0:
                 break
             params = continuation(self.scene, stage)
-            p.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q)
+            p.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q, coupling=params.coupling)
             self._stage_start = gamma.copy()
             self._stage_log, self._last = [], None
             if not (resume and stage == first_stage):
@@ -231,9 +259,12 @@ class Optimizer:
         opt.add_inequality_mconstraint(constraint, [1e-8])
         opt.set_maxeval(max_evaluations)
         try:
-            return np.asarray(opt.optimize(np.clip(gamma, 0.0, 1.0)))
+            gamma = np.asarray(opt.optimize(np.clip(gamma, 0.0, 1.0)))
+            self.stop_reason = stop_reason(opt.last_optimize_result())
+            return gamma
         except nlopt.ForcedStop:
             log.info("stage %d converged after %d evaluations", stage, len(self._stage_log))
+            self.stop_reason = "converged"
             return self._last[0].copy()
 
     def _write_history(self) -> None:
@@ -252,7 +283,9 @@ class Optimizer:
                    "constraint": float(p.constraints(gamma)[0][0]),
                    "non_discreteness_percent": non_discreteness(rho),
                    "wall_time_s": time.perf_counter() - self._t0,
-                   "evaluations_computed": p.evaluations, **p.model.figures(state)}
+                   "evaluations_computed": p.evaluations, "stop_reason": self.stop_reason,
+                   "stage": self.history[-1].stage if self.history else 0,     # of these figures
+                   **p.model.figures(state)}
         self._write_history()
         write_json(self.output / "result.json", figures)
         atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))

@@ -1,27 +1,60 @@
-"""Pictures with matplotlib (off-screen Agg backend): meshes and fields on quads."""
+"""Pictures with matplotlib (off-screen Agg backend): meshes and fields on quads, studies,
+convergence.
+
+Every picture is laid out by matplotlib's constrained layout, so panels,
+colour bars and labels do not overlap; titles are figure titles wrapped to the
+figure's width, so they never run under a colour bar. Axes carry units,
+colour bars their quantity's name.
+"""
 
 from __future__ import annotations
+
+import textwrap
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.cm import ScalarMappable  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
+from matplotlib.colors import Normalize  # noqa: E402
 
 from tofsi.output import atomic_write  # noqa: E402
+
+OBJECTIVE_LABELS = {"compliance": "compliance [J/m]", "dissipation": "dissipated power [W/m]",
+                    "pressure-drop": "pressure drop [Pa]"}
+
+
+def field_figure(points, width: float = 7.0):
+    """A figure for a field over the channel, its height following the domain's aspect."""
+    span = np.ptp(points, axis=0)
+    return plt.subplots(figsize=(width, width * span[1] / span[0] + 1.2), dpi=110, layout="constrained")
+
+
+def set_title(fig, text: str, fontsize: float = 11) -> None:
+    """The figure's title, wrapped to the figure's width (above every panel and colour bar)."""
+    if text:
+        chars = max(20, int(fig.get_figwidth() * 72 / (0.62 * fontsize)))
+        fig.suptitle(textwrap.fill(text, chars), fontsize=fontsize)
+
+
+def channel_axes(ax, points) -> None:
+    ax.set_xlim(points[:, 0].min(), points[:, 0].max())
+    ax.set_ylim(points[:, 1].min(), points[:, 1].max())
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
 
 
 def quad_field(ax, points, quads, values, cmap="viridis", vmin=None, vmax=None, edges=True,
                label=None):
-    """Quads coloured by a per-element value, with a colour bar."""
+    """Quads coloured by a per-element value, with a colour bar named ``label``."""
     polys = PolyCollection(points[quads], array=np.asarray(values, dtype=float), cmap=cmap,
                            edgecolors="k" if edges else "face", linewidths=0.15 if edges else 0.0)
     polys.set_clim(vmin, vmax)
     ax.add_collection(polys)
-    ax.set_xlim(points[:, 0].min(), points[:, 0].max())
-    ax.set_ylim(points[:, 1].min(), points[:, 1].max())
-    ax.set_aspect("equal")
+    channel_axes(ax, points)
     ax.figure.colorbar(polys, ax=ax, label=label, shrink=0.8)
     return polys
 
@@ -34,8 +67,7 @@ def save(fig, path) -> None:
 def plot_mesh(path, points, quads, values, interface_edges=None, title="", label="skewness",
               vmin=None, vmax=None, cmap="viridis", grey=None, width=7.0) -> None:
     """Mesh coloured by ``values`` (grey where ``grey`` is True), interface in red."""
-    span = np.ptp(points, axis=0)
-    fig, ax = plt.subplots(figsize=(width, width * span[1] / span[0] + 0.6), dpi=110)
+    fig, ax = field_figure(points, width)
     shown = np.ones(len(quads), bool) if grey is None else ~np.asarray(grey)
     if grey is not None and np.any(grey):
         ax.add_collection(PolyCollection(points[quads[grey]], facecolors="0.7",
@@ -44,9 +76,7 @@ def plot_mesh(path, points, quads, values, interface_edges=None, title="", label
                vmax=vmax, label=label)
     if interface_edges is not None and len(interface_edges):
         ax.add_collection(LineCollection(points[interface_edges], colors="red", linewidths=1.2))
-    ax.set_title(title)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
+    set_title(fig, title)
     save(fig, path)
 
 
@@ -58,11 +88,31 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
+def failed(row: dict) -> bool:
+    """A study point that did not converge (its figures, if any, are the failed state's)."""
+    return row.get("status") == "failed" or row.get("converged") is False
+
+
+def _mark_failed(ax, xs, ys, label) -> None:
+    """Red crosses at failed points; NaN values are marked on the bottom axis line."""
+    ys = np.asarray(ys, dtype=float)
+    finite = np.isfinite(ys)
+    xs = np.asarray(xs, dtype=float)
+    if finite.any():
+        ax.plot(xs[finite], ys[finite], "x", color="red", ms=7, mew=1.5, label=label, zorder=5)
+    if (~finite).any():
+        ax.plot(xs[~finite], np.full((~finite).sum(), 0.02), "x", color="red", ms=7, mew=1.5,
+                transform=ax.get_xaxis_transform(), clip_on=False,
+                label=None if finite.any() else label, zorder=5)
+
+
 def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool:
     """Line plots (one numeric key) or heat maps (two numeric keys) of a study.
 
     Keys with non-numeric values (e.g. the mover's name) make one series or
-    panel each. Returns False when the study has no such shape to plot.
+    panel each. Failed points (:func:`failed`) are red crosses, at the failed
+    state's figures where they exist. Returns False when the study has no
+    such shape to plot.
     """
     numeric = [k for k in keys if all(_is_number(r[k]) for r in rows)]
     series_keys = [k for k in keys if k not in numeric]
@@ -73,44 +123,59 @@ def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool
     def label(group):
         return ", ".join(f"{k}={v}" for k, v in zip(series_keys, group)) or None
 
+    any_failed = any(failed(r) for r in rows)
     if len(numeric) == 1:
         key = numeric[0]
         figures = ["min_skewness", "min_area_change", "max_area_change", "wall_time_s"]
-        fig, axes = plt.subplots(1, 4, figsize=(16, 3.6), dpi=100)
+        fig, axes = plt.subplots(1, 4, figsize=(16, 4.0), dpi=100, layout="constrained")
+        labelled = False
         for group, sel in groups.items():
-            x = [r[key] for r in sel]
-            for ax, f in zip(axes, figures):
-                ax.plot(x, [r.get(f, np.nan) for r in sel], "o-", ms=3, label=label(group))
+            ok = [r for r in sel if not failed(r)]
+            bad = [r for r in sel if failed(r)]
+            for i, (ax, f) in enumerate(zip(axes, figures)):
+                ax.plot([r[key] for r in ok], [r.get(f, np.nan) for r in ok], "o-", ms=3, label=label(group))
+                if bad:
+                    _mark_failed(ax, [r[key] for r in bad], [r.get(f, np.nan) for r in bad],
+                                 None if labelled or i else "failed")
+            labelled = labelled or bool(bad)
         for ax, f in zip(axes, figures):
             ax.set_xlabel(key)
             ax.set_ylabel(FIGURE_LABELS[f])
             ax.grid(alpha=0.3)
-            if len({r[key] for r in rows}) > 2 and min(r[key] for r in rows) > 0 and \
-                    max(r[key] for r in rows) / min(r[key] for r in rows) > 100:
+            values = [r[key] for r in rows]
+            if len(set(values)) > 2 and min(values) > 0 and max(values) / min(values) > 100:
                 ax.set_xscale("log")
-        if series_keys:
+        if series_keys or any_failed:
             axes[0].legend(fontsize=7)
     elif len(numeric) == 2:
         kx, ky = numeric
-        fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4.5), dpi=100, squeeze=False)
+        fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 5.0), dpi=100,
+                                 squeeze=False, layout="constrained")
         for ax, (group, sel) in zip(axes[0], groups.items()):
             xs = sorted({r[kx] for r in sel})
             ys = sorted({r[ky] for r in sel})
             Z = np.full((len(ys), len(xs)), np.nan)
             for r in sel:
-                Z[ys.index(r[ky]), xs.index(r[kx])] = r.get("min_skewness", np.nan)
+                if not failed(r):
+                    Z[ys.index(r[ky]), xs.index(r[kx])] = r.get("min_skewness", np.nan)
             mesh = ax.pcolormesh(xs, ys, Z, shading="nearest", cmap="viridis")
             fig.colorbar(mesh, ax=ax, label="minimum skewness")
+            bad = [r for r in sel if failed(r)]
+            if bad:
+                ax.plot([r[kx] for r in bad], [r[ky] for r in bad], "x", color="red", ms=8, mew=1.5,
+                        label="failed")
+                ax.legend(fontsize=7, loc="upper right")
+            text = label(group) or ""
             if np.isfinite(Z).any():
                 j, i = np.unravel_index(np.nanargmax(Z), Z.shape)
                 ax.plot(xs[i], ys[j], "r*", ms=12)
-                ax.set_title(f"{label(group) or ''}  best {Z[j, i]:.3f} at ({xs[i]:g}, {ys[j]:g})", fontsize=9)
+                text += f"{'; ' if text else ''}best {Z[j, i]:.3f} at ({xs[i]:g}, {ys[j]:g})"
+            ax.set_title(textwrap.fill(text, 45), fontsize=9)
             ax.set_xlabel(kx)
             ax.set_ylabel(ky)
     else:
         return False
-    if title:
-        fig.suptitle(title)
+    set_title(fig, title)
     save(fig, path)
     return True
 
@@ -144,8 +209,7 @@ def plot_nodal(path, points, quads, values, title="", label="", cmap="viridis", 
                outline=None, width=8.0) -> None:
     """A nodal field on quads (two Gouraud-shaded triangles each), solid elements in grey."""
     from matplotlib.tri import Triangulation
-    span = np.ptp(points, axis=0)
-    fig, ax = plt.subplots(figsize=(width, width * span[1] / span[0] + 0.6), dpi=110)
+    fig, ax = field_figure(points, width)
     tris = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     mesh = ax.tripcolor(Triangulation(points[:, 0], points[:, 1], tris), values, shading="gouraud", cmap=cmap)
     fig.colorbar(mesh, ax=ax, label=label, shrink=0.8)
@@ -153,50 +217,78 @@ def plot_nodal(path, points, quads, values, title="", label="", cmap="viridis", 
         ax.add_collection(PolyCollection(points[quads[grey]], facecolors="0.6", edgecolors="none", alpha=0.85))
     if outline is not None and len(outline):
         ax.add_collection(LineCollection(points[outline], colors="red", linewidths=1.0))
-    ax.set_aspect("equal")
-    ax.set_title(title)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
+    channel_axes(ax, points)
+    set_title(fig, title)
     save(fig, path)
 
 
 def plot_design(path, points, quads, rho, speed=None, title="", width=8.0) -> None:
-    """Design densities (grey: solid) over the flow speed (nodal, colour)."""
+    """Design densities (black: solid; colour bar ``density``) over the flow speed (nodal,
+    blue; colour bar ``|v| [m/s]``)."""
     from matplotlib.tri import Triangulation
-    span = np.ptp(points, axis=0)
-    fig, ax = plt.subplots(figsize=(width, width * span[1] / span[0] + 0.6), dpi=110)
+    fig, ax = field_figure(points, width)
     if speed is not None:
         tris = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
         m = ax.tripcolor(Triangulation(points[:, 0], points[:, 1], tris), speed, shading="gouraud",
                          cmap="Blues")
-        fig.colorbar(m, ax=ax, label="|v| [m/s]", shrink=0.8)
+        fig.colorbar(m, ax=ax, label="flow speed |v| [m/s]", shrink=0.8)
     colours = np.zeros((len(rho), 4))
     colours[:, 3] = np.clip(rho, 0, 1)                     # black, opaque where solid
     ax.add_collection(PolyCollection(points[quads], facecolors=colours, edgecolors="none"))
-    ax.set_xlim(points[:, 0].min(), points[:, 0].max())
-    ax.set_ylim(points[:, 1].min(), points[:, 1].max())
-    ax.set_aspect("equal")
-    ax.set_title(title)
+    fig.colorbar(ScalarMappable(Normalize(0.0, 1.0), "Greys"), ax=ax, shrink=0.8,
+                 label="density rho (0 fluid, 1 solid)")
+    channel_axes(ax, points)
+    set_title(fig, title)
     save(fig, path)
 
 
-def plot_convergence(path, history: list[dict], title="") -> None:
-    """Objective (log scale) and volume constraint versus iteration; stage starts dashed."""
+def plot_convergence(path, history: list[dict], title="", objective_label="objective") -> None:
+    """Objective (log scale when it spans decades) and volume constraint versus iteration;
+    the start of each continuation stage is a dashed line labelled with its beta. When the
+    fluid mesh moved (two-way stages), a second panel shows its quality per iteration: the
+    smallest element skewness and the range of element area change."""
     it = [h["iteration"] for h in history]
-    fig, ax = plt.subplots(figsize=(7, 3.6), dpi=110)
+    skew = np.array([h.get("min_skewness", np.nan) for h in history], dtype=float)
+    moved = bool(np.isfinite(skew).any())
+    fig, axes = plt.subplots(2 if moved else 1, 1, figsize=(7.5, 6.6 if moved else 4.2), dpi=110,
+                             layout="constrained", sharex=True, squeeze=False)
+    ax = axes[0, 0]
     objective = np.array([h["objective"] for h in history])
-    ax.plot(it, np.abs(objective), "b-", label="objective")
+    lines = ax.plot(it, np.abs(objective), "b-", label=objective_label)
     if np.all(objective > 0) and objective.max() / objective.min() > 20:
         ax.set_yscale("log")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("objective", color="b")
+    axes[-1, 0].set_xlabel("design iteration")
+    ax.set_ylabel(objective_label, color="b")
     ax2 = ax.twinx()
-    ax2.plot(it, [h["constraint"] for h in history], "r-", label="constraint g")
+    lines += ax2.plot(it, [h["constraint"] for h in history], "r-", label="volume constraint g")
     ax2.axhline(0.0, color="r", lw=0.5, ls=":")
-    ax2.set_ylabel("volume constraint g (<= 0)", color="r")
-    for k in range(1, len(history)):
-        if history[k]["stage"] != history[k - 1]["stage"]:
-            ax.axvline(history[k]["iteration"], color="0.7", lw=0.8, ls="--")
-    ax.set_title(title)
+    ax2.set_ylabel("volume constraint g (<= 0 feasible)", color="r")
+    starts = [k for k in range(1, len(history)) if history[k]["stage"] != history[k - 1]["stage"]]
+    for n, k in enumerate(starts):
+        for row in axes[:, 0]:
+            line = row.axvline(history[k]["iteration"], color="0.5", lw=0.8, ls="--",
+                               label="new continuation stage" if n == 0 else None)
+        if n == 0:
+            lines.append(line)
+        coupling = history[k].get("coupling", "")
+        ax.annotate(f"beta {history[k]['beta']:g}" + (f", {coupling}" if coupling else ""),
+                    (history[k]["iteration"], 1.0), xycoords=("data", "axes fraction"), xytext=(2, -10),
+                    textcoords="offset points", fontsize=7, color="0.35")
+    if moved:
+        q = axes[1, 0]
+        q.plot(it, skew, "g-", label="min element skewness")
+        q.set_ylabel("min skewness (1 best, < 0 inverted)", color="g")
+        q.axhline(0.0, color="g", lw=0.5, ls=":")
+        qa = q.twinx()
+        lo = [h.get("min_area_change", np.nan) for h in history]
+        hi = [h.get("max_area_change", np.nan) for h in history]
+        qa.plot(it, lo, "m--", lw=0.9, label="min area change")
+        qa.plot(it, hi, "m:", lw=0.9, label="max area change")
+        qa.set_ylabel("element area change A / A0", color="m")
+        q.grid(alpha=0.3)
+        q.set_title("moved fluid mesh", fontsize=9)
+    fig.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="outside lower center",
+               ncols=len(lines), frameon=False)
     ax.grid(alpha=0.3, which="both")
+    set_title(fig, title)
     save(fig, path)

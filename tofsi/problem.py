@@ -26,6 +26,7 @@ from adjoint import Adjoint
 from tofsi.blocks import Continuation
 from tofsi.coupled import CoupledModel, State
 from tofsi.design import DesignMap
+from tofsi.design_file import read_design
 from tofsi.errors import InputError
 from tofsi.objectives import OBJECTIVES, VolumeFraction
 
@@ -39,7 +40,7 @@ class Problem:
         self.scene = scene
         self.model = CoupledModel(scene, mesh)
         d = scene.design
-        needs = {"compliance": "structure", "dissipation": "fluid", "pressure-drop": "fluid"}[d.objective]
+        needs = OBJECTIVES[d.objective].needs                 # the effect it is a figure of
         if getattr(scene.effects, needs) == "none":
             raise InputError("design.objective", d.objective, f"needs effects.{needs}")
         self.params: Continuation = self.model.params
@@ -61,22 +62,15 @@ class Problem:
         if not path:
             fraction = self.scene.design.volume_fraction
             return np.full(self.n_design, fraction if self.scene.design.constraint == "solid" else 1 - fraction)
-        from pathlib import Path
-        if not Path(path).is_file():
-            raise InputError("design.initial", path, "no such file (a design.npy of an earlier run)")
-        try:
-            gamma = np.load(path)
-        except (ValueError, OSError) as err:
-            raise InputError("design.initial", path, f"not a NumPy array file ({err})") from None
-        if gamma.shape != (self.n_design,) or not np.all(np.isfinite(gamma)):
-            raise InputError("design.initial", path, f"needs {self.n_design} finite values (this scene's "
-                                                     "design variables), got shape " + str(gamma.shape))
-        return np.clip(gamma, 0.0, 1.0)
+        return read_design(path, self.n_design)         # checked: shape, finite, in [0, 1]
 
-    def set_stage(self, beta: float | None = None, penalty: float | None = None, q: float | None = None):
+    def set_stage(self, beta: float | None = None, penalty: float | None = None, q: float | None = None,
+                  coupling: str | None = None):
         """Change continuation parameters: a new :attr:`params` record (nothing else changes)."""
         changes = {k: float(v) for k, v in (("beta", beta), ("penalty", penalty), ("brinkman_q", q))
                    if v is not None}
+        if coupling is not None:
+            changes["coupling"] = coupling
         self.params = dataclasses.replace(self.params, **changes)
         if beta is not None:
             self.map = self.map.with_beta(beta)
@@ -116,7 +110,8 @@ class Problem:
 
     def _adjoint(self, entry) -> Adjoint:
         if "adjoint" not in entry:
-            entry["adjoint"] = Adjoint(self.model.system, entry["state"])
+            state = entry["state"]
+            entry["adjoint"] = Adjoint(self.model.system_for(state.params), state)
         return entry["adjoint"]
 
     def evaluate(self, gamma) -> tuple[float, np.ndarray]:

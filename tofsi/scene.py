@@ -12,6 +12,7 @@ motion off); both spellings address the same value.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import tomllib
 import warnings
 from dataclasses import dataclass
@@ -23,7 +24,12 @@ import movers
 from tofsi.config import build, coerce, option
 from tofsi.errors import InputError
 from tofsi.settings import (BandSettings, CoupledSettings, DesignSettings, FluidSettings,
-                            OptimizerSettings, StructureSettings, TuneSettings)
+                            OptimizerSettings, SolverSettings, StructureSettings, TuneSettings)
+
+THIN = 1e-6                 # solids thinner than this fraction of the channel get a warning
+MIN_ELEMENTS_ACROSS = 4     # mesh.h_max is at most the channel's smaller side over this
+log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class Geometry:
@@ -32,9 +38,11 @@ class Geometry:
     length: float = option(2.0, gt=0, doc="channel length along x [m]")
     height: float = option(1.0, gt=0, doc="channel height along y [m]")
     solids: tuple[tuple[float, ...], ...] = option((), length=4,
-                                                   doc="solid rectangles [x0, x1, y0, y1] [m]")
+                                                   doc="solid rectangles [x0, x1, y0, y1] [m]; "
+                                                       "overlapping ones merge into their union")
     holes: tuple[tuple[float, ...], ...] = option((), length=4,
-                                                  doc="fluid rectangles cut out of the solids [m]")
+                                                  doc="fluid rectangles cut out of the solids [m]; "
+                                                      "each must overlap a solid")
     design: tuple[float, ...] = option((), doc="design rectangle [x0, x1, y0, y1] [m]; "
                                                "empty: no design region")
 
@@ -51,6 +59,19 @@ class Geometry:
                 raise InputError(key, [x0, x1, y0, y1],
                                  f"need 0 <= x0 < x1 <= {self.length} and 0 <= y0 < y1 <= "
                                  f"{self.height} (inside the channel)")
+        for i, hole in enumerate(self.holes):
+            if not any(overlap(hole, solid) for solid in self.solids):
+                raise InputError(f"holes[{i}]", list(hole), "lies outside every solid; a hole is "
+                                 "cut out of a solid (geometry.solids)")
+        for i, (x0, x1, y0, y1) in enumerate(self.solids):
+            if x1 - x0 < THIN * self.length or y1 - y0 < THIN * self.height:
+                log.warning("geometry.solids[%d] = %s is thinner than %g of the channel: its "
+                            "elements will be that thin", i, [x0, x1, y0, y1], THIN)
+
+
+def overlap(a, b) -> bool:
+    """Rectangles ``[x0, x1, y0, y1]`` that share a positive area."""
+    return min(a[1], b[1]) > max(a[0], b[0]) and min(a[3], b[3]) > max(a[2], b[2])
 
 
 @dataclass(frozen=True)
@@ -112,6 +133,7 @@ class MoverSettings:
     name: str
     layers: tuple[float, ...] = ()
     params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    layers_from: str = "density"
     band: BandSettings = dataclasses.field(default_factory=BandSettings)
 
     @property
@@ -138,6 +160,7 @@ class Scene:
     coupled: CoupledSettings
     tune: TuneSettings = dataclasses.field(default_factory=TuneSettings)
     source: str = ""
+    solver: SolverSettings = dataclasses.field(default_factory=SolverSettings)
 
     @property
     def has_design(self) -> bool:
@@ -146,23 +169,31 @@ class Scene:
 
 _TABLES = {"geometry": Geometry, "mesh": MeshSettings, "deformation": Deformation,
            "fluid": FluidSettings, "structure": StructureSettings, "design": DesignSettings,
-           "optimizer": OptimizerSettings, "coupled": CoupledSettings, "tune": TuneSettings}
+           "optimizer": OptimizerSettings, "coupled": CoupledSettings,
+           "solver": SolverSettings, "tune": TuneSettings}
 _TOP = {"name", "description", "effects", "mover", *_TABLES}
+
+
+LAYERS_FROM = ("density", "solid")
 
 
 def _build_mover(raw: dict, mover_name: str) -> MoverSettings:
     names = movers.available()
     raw = dict(raw)
     layers = raw.pop("layers", [])
+    layers_from = coerce(str, raw.pop("layers_from", "density"), "mover.layers_from",
+                         dict(choices=LAYERS_FROM))
     band = build(BandSettings, raw.pop("band", {}), "mover.band")
     for key, value in raw.items():
         if key not in names:
-            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, band, or a "
+            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, layers_from, "
+                             "band, or a "
                              "parameter table of one of " + ", ".join(map(repr, names)))
     factors = coerce(tuple[float, ...], layers, "mover.layers",
                      dict(gt=0, doc="stiffening factor per element layer"))
     params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
-    return MoverSettings(name=mover_name, layers=factors, params=MappingProxyType(params), band=band)
+    return MoverSettings(name=mover_name, layers=factors, params=MappingProxyType(params),
+                         layers_from=layers_from, band=band)
 
 
 def _mover_name(raw: dict) -> str:
@@ -204,7 +235,7 @@ def _resolve_aliases(raw: dict) -> dict:
             first = schedule[0] if isinstance(schedule, (list, tuple)) and schedule else schedule
             if first != value:
                 raise InputError(f"{table}.{key}", value, f"conflicts with {to_table}.{to_key} = "
-                                 f"{schedule!r}, whose first entry is the same value; set one of them")
+                                 f"{schedule!r}: the old key is that schedule's first entry; set one of them")
         else:
             target[to_key] = [value]
         raw[to_table] = target
@@ -220,8 +251,9 @@ def scene_from_dict(raw: dict, source: str = "") -> Scene:
         if key not in _TOP:
             raise InputError(key, raw[key], "unknown key; allowed keys: " + ", ".join(sorted(_TOP)))
     name = raw.get("name")
-    if not isinstance(name, str) or not name or any(c in name for c in "/\\\0"):
-        raise InputError("name", name, "required: a non-empty string without slashes")
+    if not isinstance(name, str) or not name or any(c in name for c in "/\\\0") or name in (".", ".."):
+        raise InputError("name", name, "required: a non-empty string without slashes, not '.' or '..' "
+                         "(it names the output folder)")
     description = raw.get("description", "")
     if not isinstance(description, str):
         raise InputError("description", description, "expected a string")
@@ -237,8 +269,27 @@ def scene_from_dict(raw: dict, source: str = "") -> Scene:
     tables = {key: build(cls, raw.get(key, {}), key) for key, cls in _TABLES.items()}
     effects = build(Effects, effects_raw, "effects")
     mover = _build_mover(mover_raw, mover_name)
+    _check_across_tables(tables["geometry"], tables["mesh"], tables["fluid"])
+    two_way = effects.coupling == "two-way" and effects.mesh_motion != "none"
+    if "two-way" in tables["design"].coupling and not two_way:
+        raise InputError("design.coupling", list(tables["design"].coupling),
+                         "two-way stages need effects.coupling = \"two-way\" and a mover (mover.name)")
     return Scene(name=name, description=description, effects=effects, mover=mover,
                  source=source, **tables)
+
+
+def _check_across_tables(geometry: Geometry, mesh: MeshSettings, fluid) -> None:
+    """Keys checked against the channel: element sizes, inflow and outflow segments."""
+    smaller = min(geometry.length, geometry.height)
+    if mesh.h_max > smaller / MIN_ELEMENTS_ACROSS:
+        raise InputError("mesh.h_max", mesh.h_max, f"allowed: h_max <= {smaller / MIN_ELEMENTS_ACROSS:g} "
+                         f"(at least {MIN_ELEMENTS_ACROSS} elements across the channel's smaller "
+                         f"side, {smaller:g} m)")
+    for name, side in (("inlets", "left"), ("outlets", "right")):
+        for i, (y0, y1, _) in enumerate(getattr(fluid, name)):
+            if y0 < 0 or y1 > geometry.height:
+                raise InputError(f"fluid.{name}[{i}]", [y0, y1], f"extends outside the channel's "
+                                 f"{side} side; need 0 <= y0 < y1 <= geometry.height = {geometry.height:g}")
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
@@ -277,14 +328,18 @@ def apply_overrides(raw: dict, overrides) -> dict:
 def read_scene_file(path: str | Path) -> dict:
     """Raw tables of a scene file, with clear errors for missing or malformed files."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError("scene", str(path), "is a directory; give a scene file (TOML)")
     if not path.is_file():
         raise InputError("scene", str(path), "no such file")
     try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
+        text = path.read_bytes().decode("utf-8-sig")          # a byte-order mark is allowed
+        return tomllib.loads(text)
     except PermissionError:
         raise InputError("scene", str(path), "file is not readable") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+    except UnicodeDecodeError:
+        raise InputError("scene", str(path), "not a text file (UTF-8 TOML expected)") from None
+    except tomllib.TOMLDecodeError as err:
         raise InputError("scene", str(path), f"not valid TOML ({err})") from None
 
 
@@ -300,12 +355,15 @@ def load_scene(path: str | Path, overrides=None) -> Scene:
 def reference_table() -> str:
     """Markdown table of every scene key: default, allowed values, meaning (docs/scenes.md)."""
     from tofsi.config import documentation
-    rows = [("name", "(required)", "a string without slashes", "the scene's name (output folder)"),
+    rows = [("name", "(required)", "a string without slashes, not . or ..", "the scene's name (output folder)"),
             ("description", "", "a string", "one line about the scene"),
             ("mover.name", "none", "none, " + ", ".join(movers.available()),
              "the mover (same setting as effects.mesh_motion)"),
             ("mover.layers", [], "list of numbers, each 0 < value",
-             "stiffening factor of each element layer counted from the interface")]
+             "stiffening factor of each element layer counted from the interface"),
+            ("mover.layers_from", "density", "one of 'density', 'solid'",
+             "design scenes: count the layers from the evolving design (smooth dilation of the "
+             "densities, gray elements partly stiffened, differentiable) or from the fixed solid only")]
     for key, cls in _TABLES.items():
         rows += documentation(cls, key)
     rows += [r for r in documentation(Effects, "effects")]

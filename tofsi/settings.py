@@ -57,30 +57,52 @@ class StructureSettings:
     e_min_ratio: float = option(1e-9, gt=0, lt=1, doc="Emin / E0 of void (fluid) elements")
     clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
                                       doc="channel sides where the structure is clamped")
+    load: str = option("reaction", choices=("reaction", "stress-divergence"),
+                       doc="the fluid's force on the solid: reaction, the momentum-consistent "
+                           "reaction of the fluid residual (its resultant tends to the no-slip "
+                           "body's drag and lift); stress-divergence, Lundgaard et al. 2018's "
+                           "volume form of the total stress inside the solid (loses the viscous "
+                           "shear of an unresolved Brinkman layer; for reproducing published results)")
     load_exponent: float = option(1.0, ge=1, le=10,
-                                  doc="fluid load weight rho^k (1: Lundgaard et al.; the SIMP "
-                                      "exponent keeps gray elements' displacement bounded)")
+                                  doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
+                                      "et al.; the SIMP exponent keeps gray elements' displacement "
+                                      "bounded)")
 
 
 @dataclass(frozen=True)
 class CoupledSettings:
     """The two-way coupled solve (table ``[coupled]``)."""
 
-    method: str = option("partitioned", choices=("partitioned", "monolithic"),
-                         doc="fixed point with Aitken relaxation, or Newton on the 3x3 block Jacobian "
-                             "(needs a mover with a residual form)")
+    method: str = option("auto", choices=("auto", "partitioned", "monolithic"),
+                         doc="fixed point with Aitken relaxation, or Newton on the block Jacobian "
+                             "(needs a mover with a residual form); auto: monolithic when the mover "
+                             "has a residual form, partitioned otherwise")
     tol: float = option(1e-9, gt=0, lt=1, doc="relative change of u (partitioned) or residual "
                                                "per block (monolithic)")
     max_iter: int = option(60, ge=1, le=10_000, doc="coupling iterations")
     relaxation: float = option(0.5, gt=0, le=1, doc="first Aitken relaxation factor")
+    quasi_newton: bool = option(True, doc="monolithic: keep the shape derivatives (F_x, S_x) of the "
+                                          "first iterate for the rest of the Newton solve (the "
+                                          "adjoint gets the exact ones of the converged state)")
+
+
+def objective_names() -> tuple[str, ...]:
+    """The objectives' registry, read when a scene is validated (an objective is added in
+    :mod:`tofsi.objectives` alone)."""
+    from tofsi.objectives import OBJECTIVES          # on use: it pulls in the physics kernels
+    return tuple(OBJECTIVES)
 
 
 @dataclass(frozen=True)
 class DesignSettings:
     """Density design: objective, volume, filter and projection (table ``[design]``)."""
 
-    objective: str = option("compliance", choices=("compliance", "dissipation", "pressure-drop"),
-                            doc="quantity to minimize")
+    objective: str = option("compliance", choices=objective_names,
+                            doc="quantity to minimize (tofsi.objectives.OBJECTIVES): compliance, "
+                                "f.u of the fluid load [J/m]; dissipation, Borrvall-Petersson's "
+                                "1/2 int (mu grad v:grad v + alpha |v|^2) [W/m], half the "
+                                "dissipated_power figure when v = 0 on the whole boundary; "
+                                "pressure-drop, mean inlet minus outlet pressure [Pa]")
     volume_fraction: float = option(0.25, gt=0, lt=1,
                                     doc="upper bound of the constrained phase's fraction of the "
                                         "design region")
@@ -98,9 +120,24 @@ class DesignSettings:
                                            doc="convexity q of the Brinkman interpolation, one value "
                                                "per stage (last value kept); `tofsi solve` uses the "
                                                "first (alias: fluid.brinkman_q)")
+    coupling: tuple[str, ...] = option((), choices=("one-way", "two-way"),
+                                       doc="coupling of each stage (last value kept) for a two-way "
+                                           "scene: one-way stages first find the topology at one-way "
+                                           "cost, two-way stages design against the deforming flow; "
+                                           "empty: effects.coupling throughout")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
                                   "(path relative to the working directory); empty: uniform")
+
+    def __post_init__(self):
+        if not self.beta:
+            raise InputError("beta", [], "needs at least one value (the projection sharpness of "
+                             "each continuation stage; 0: no projection)")
+
+    @property
+    def n_stages(self) -> int:
+        """Continuation stages: the longest schedule (the others keep their last value)."""
+        return max(len(self.beta), len(self.penalty), len(self.brinkman_q), len(self.coupling), 1)
 
 
 @dataclass(frozen=True)
@@ -112,6 +149,24 @@ class OptimizerSettings:
     tol_change: float = option(1e-3, gt=0, doc="stop when max |gamma change| falls below")
     tol_objective: float = option(1e-6, gt=0, doc="stop on relative objective change below")
     output_every: int = option(10, ge=1, doc="write pictures and VTU every N iterations")
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Linear algebra: the sparse direct backend, threads and the memory limit (table ``[solver]``)."""
+
+    linear_solver: str = option("superlu", choices=("auto", "superlu", "pardiso", "petsc"),
+                                doc="sparse direct backend: superlu (always present, bitwise "
+                                    "reproducible), pardiso (MKL, pip extra 'fast'), petsc "
+                                    "(MUMPS through petsc4py, distributed under mpiexec), "
+                                    "auto (the fastest installed)")
+    threads: int = option(0, ge=0, le=4096, doc="threads of the sparse direct backend "
+                                                "(0: one per core)")
+    blas_threads: int = option(1, ge=0, le=4096,
+                               doc="OpenBLAS threads of NumPy/SciPy (1: fastest measured here and "
+                                   "robust on a shared machine; 0: leave as the environment says)")
+    max_memory_gb: float = option(0.0, ge=0, doc="refuse a solve whose estimated memory exceeds "
+                                                 "this [GB] (0: the machine's available memory)")
 
 
 BAND_MODES = ("off", "auto", "layers", "distance")

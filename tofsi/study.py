@@ -9,16 +9,17 @@ A sweep names a dotted scene key and its values:
 Several sweeps form their Cartesian product. ``KEY[i]`` sweeps one entry of
 a list key; the entries of one list are combined into one override
 (``mover.layers=[f1, f2]``). Each point runs in a worker process (``jobs``),
-and a run that fails numerically is recorded with ``converged = False`` and
-the figures of its diagnostic, not dropped.
+and a run that fails numerically is recorded with ``status = "failed"``,
+``converged = False`` and the figures of its diagnostic, not dropped.
 """
 
 from __future__ import annotations
 
 import itertools
+import multiprocessing
 import re
+import signal
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
@@ -80,7 +81,7 @@ def points(sweeps: list[Sweep]) -> list[dict]:
     return [dict(zip(keys, combo)) for combo in itertools.product(*(s.values for s in sweeps))]
 
 
-def overrides_for(point: dict, base: dict | None = None) -> list[str]:
+def overrides_for(point: dict) -> list[str]:
     """Override strings for a sweep point; ``KEY[i]`` entries join into one list."""
     lists: dict[str, dict[int, object]] = {}
     out = []
@@ -111,12 +112,51 @@ def _run_point(args):
     from tofsi.scene import load_scene
     t0 = time.perf_counter()
     try:
-        figures = runner(load_scene(scene_path, overrides))
+        figures = {"status": "ok", **runner(load_scene(scene_path, overrides))}
     except NumericalError as err:
-        figures = {"converged": False, "error": str(err).splitlines()[0],
+        figures = {"status": "failed", "converged": False, "error": str(err).splitlines()[0],
                    **{k: v for k, v in err.diagnostic.get("quality", {}).items()
                       if k in ("min_skewness", "min_area_change", "max_area_change", "n_inverted")}}
     return {**point, **figures, "run_time_s": time.perf_counter() - t0}
+
+
+def _worker_init() -> None:
+    """Workers leave Ctrl-C to the parent (which stops them) and die on SIGTERM."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def plan(scene_path, base_overrides: list[str], sweeps: list[Sweep], runner) -> list[tuple]:
+    """The tasks of a study, one per sweep point; the first and last point's scenes are
+    loaded here, so bad keys and values fail before any work."""
+    grid = points(sweeps)
+    tasks = [(runner, str(scene_path), list(base_overrides) + overrides_for(p), p) for p in grid]
+    from tofsi.scene import load_scene
+    for task in tasks[:1] + tasks[-1:]:
+        load_scene(task[1], task[2])
+    return tasks
+
+
+def run_tasks(tasks: list[tuple], jobs: int = 1, on_row: Callable[[dict], None] | None = None) -> list[dict]:
+    """Run planned tasks in order (``jobs`` worker processes); ``on_row`` sees each finished row
+    at once, so an interrupted study keeps its finished points. Rows carry ``status``: ``ok``
+    or ``failed`` (a numerical failure, recorded with the failed state's figures)."""
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise InputError("--jobs", jobs, "allowed: a whole number >= 1 (worker processes)")
+    rows: list[dict] = []
+
+    def keep(row):
+        rows.append(row)
+        if on_row:
+            on_row(row)
+    if jobs == 1 or len(tasks) <= 1:
+        for task in tasks:
+            keep(_run_point(task))
+        return rows
+    with multiprocessing.Pool(min(jobs, len(tasks)), initializer=_worker_init) as pool:
+        for row in pool.imap(_run_point, tasks):           # leaving the block terminates workers
+            keep(row)
+    return rows
 
 
 def run_study(scene_path, base_overrides: list[str], sweeps: list[Sweep],
@@ -125,24 +165,14 @@ def run_study(scene_path, base_overrides: list[str], sweeps: list[Sweep],
 
     ``runner`` must be a module-level function (it is sent to worker processes).
     """
-    grid = points(sweeps)
-    tasks = [(runner, str(scene_path), list(base_overrides) + overrides_for(p), p) for p in grid]
-    from tofsi.scene import load_scene
-    for task in tasks[:1] + tasks[-1:]:                 # bad keys fail here, before any work
-        load_scene(task[1], task[2])
-    rows: list[dict] = []
-    if jobs <= 1:
-        for i, task in enumerate(tasks):
-            rows.append(_run_point(task))
-            if progress:
-                progress(i + 1, len(tasks), rows[-1])
-        return rows
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for i, row in enumerate(pool.map(_run_point, tasks)):
-            rows.append(row)
-            if progress:
-                progress(i + 1, len(tasks), row)
-    return rows
+    tasks = plan(scene_path, base_overrides, sweeps, runner)
+    count = [0]
+
+    def on_row(row):
+        count[0] += 1
+        if progress:
+            progress(count[0], len(tasks), row)
+    return run_tasks(tasks, jobs, on_row)
 
 
 def best(rows: list[dict], figure: str = "min_skewness") -> dict | None:

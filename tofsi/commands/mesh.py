@@ -31,6 +31,7 @@ def run(scene, args, ctx) -> dict:
             + f"; element size {figures['h_smallest']:.4g} to {figures['h_largest']:.4g} m")
     layer = element_layers(mesh.incidence, mesh.interface_nodes, mesh.region != SOLID)
     skew = quality.skewness(mesh.points, mesh.quads)
+    ctx.begin()
     write_vtu(ctx.path("mesh.vtu"), mesh.points, {"quad": mesh.quads},
               cell_data={"region": mesh.region, "layer": layer, "skewness": skew,
                          "area": quality.signed_area(mesh.points, mesh.quads)})

@@ -5,11 +5,38 @@ from __future__ import annotations
 import numpy as np
 
 from tofsi import quality
-from tofsi.errors import NumericalError
+from tofsi.errors import InputError, NumericalError
 from tofsi.mesh import SOLID
 from tofsi.motion import motion_setup, moved_quality, run_move
 from tofsi.output import write_json, write_vtu
 from tofsi.plotting import plot_mesh
+from tofsi.provenance import mover_settings
+
+MOTION_KEYS = {"translation": "deformation.translation", "rotation": "deformation.rotation_deg",
+               "bending": "deformation.bending_tip", "pressure": "deformation.tip_displacement",
+               "fsi": "deformation.tip_displacement"}
+
+
+def check_motion_inside(scene, setup) -> None:
+    """Before moving: every solid node that starts inside the channel must stay strictly
+    inside it (a solid pushed onto or through a wall leaves no room for the fluid mesh)."""
+    mesh, g = setup.mesh, scene.geometry
+    nodes = mesh.nodes_of(SOLID)
+    start = mesh.points[nodes]
+    moved = start + setup.prescribed[nodes]
+    size = np.array([g.length, g.height])
+    tol = 1e-12 * size
+    interior = (start > tol) & (start < size - tol)             # per coordinate
+    outside = interior & ((moved <= tol) | (moved >= size - tol))
+    if outside.any():
+        k = int(np.flatnonzero(outside.any(axis=1))[0])
+        d = scene.deformation
+        key = MOTION_KEYS[d.mode] if (d.mode != "fsi" or d.scale) else "deformation.mode"
+        value = getattr(d, key.split(".")[1])
+        raise InputError(key, value, f"moves the solid out of the channel: the solid node at "
+                         f"({start[k, 0]:.4g}, {start[k, 1]:.4g}) goes to ({moved[k, 0]:.4g}, "
+                         f"{moved[k, 1]:.4g}), outside (0, {g.length:g}) x (0, {g.height:g}); "
+                         "use a smaller motion")
 
 
 def write_moved_mesh(ctx, setup, displacement, name, title, cell_data=None):
@@ -30,13 +57,15 @@ def write_moved_mesh(ctx, setup, displacement, name, title, cell_data=None):
 
 def run(scene, args, ctx) -> dict:
     setup = motion_setup(scene)
+    check_motion_inside(scene, setup)
     ctx.say(f"{scene.name}: moving {setup.moving.size} quads with the {scene.mover.name} mover "
             f"({scene.deformation.mode}); stiffening layers {list(scene.mover.layers) or 'none'}")
-    bar = ctx.progress(1, f"{scene.mover.name}")
+    bar = ctx.progress(1, f"{scene.mover.name} mover", every=1.0)
     try:
         _, result = run_move(scene, progress=bar, setup=setup)
     except NumericalError as err:
         bar.close()
+        ctx.begin()
         state = getattr(err, "state", None)
         if state is not None:
             write_moved_mesh(ctx, setup, state, "failed_mesh", f"{scene.name}: FAILED ({err})")
@@ -57,10 +86,12 @@ def run(scene, args, ctx) -> dict:
             f"{q.min_area_change:.4f} to {q.max_area_change:.4f}, {q.n_inverted} inverted; "
             f"{r.increments} increments, {r.newton_iterations} Newton iterations, "
             f"{r.wall_time_s:.2f} s")
+    ctx.begin()
     write_moved_mesh(ctx, setup, result.displacement, "moved_mesh",
                      f"{scene.name} ({scene.deformation.mode}), {scene.mover.name}: "
                      f"min skewness {q.min_skewness:.3f}", result.cell_data)
-    write_json(ctx.path("move.json"), {"figures": figures, "report": r.as_dict()})
+    write_json(ctx.path("move.json"), {"figures": figures, "settings": mover_settings(scene),
+                                     "report": r.as_dict()})
     ctx.say("wrote " + ", ".join(ctx.written))
     figures["outputs"] = list(ctx.written)
     return figures

@@ -7,16 +7,39 @@ import sys
 import numpy as np
 
 from tofsi.optimize import Optimizer
+from tofsi import quality
 from tofsi.output import atomic_write, write_vtu
-from tofsi.plotting import plot_convergence, plot_design
+from tofsi.plotting import OBJECTIVE_LABELS, plot_convergence, plot_design
 from tofsi.problem import Problem
+from tofsi.resume import check_checkpoint
 
 
 class Pictures:
-    """Design PNGs, a VTU series with its ParaView collection, and the convergence plot."""
+    """Design PNGs, a VTU series with its ParaView collection, and the convergence plot.
+
+    Each design VTU carries, per element, the physical density ``density`` (rho),
+    the design variables ``design_variable`` (gamma), the filtered densities
+    ``filtered_density`` (before projection), the objective's sensitivity
+    ``sensitivity`` (df/dgamma) -- the last three are NaN outside the design
+    region -- the region tag, and where the fluid mesh moved (two-way stages) its
+    per-element ``skewness`` and ``area_change``.
+    """
 
     def __init__(self, ctx, problem):
         self.ctx, self.problem, self.series = ctx, problem, []
+
+    def design_fields(self, gamma) -> dict:
+        """Per-element design fields (NaN outside the design region)."""
+        p = self.problem
+        design = p.map.design
+        fields = {}
+        _, df = p.evaluate(gamma)                        # cached: computed by the optimizer
+        for name, values in (("design_variable", gamma), ("filtered_density", p.map.filter.forward(gamma)),
+                             ("sensitivity", df)):
+            full = np.full(p.model.mesh.n_elements, np.nan)
+            full[design] = values
+            fields[name] = full
+        return fields
 
     def __call__(self, iteration, gamma, state) -> None:
         p, mesh = self.problem, self.problem.model.mesh
@@ -33,8 +56,11 @@ class Pictures:
         name = f"design_{tag}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
                     title=f"{p.scene.name}: design at iteration {iteration}")
-        write_vtu(self.ctx.output / f"{name}.vtu", X, {"quad": mesh.quads}, point_data,
-                  {"density": state.rho, "region": mesh.region})
+        cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma)}
+        if state.x is not None:                                  # the moved fluid mesh's quality
+            cells["skewness"] = quality.skewness(X, mesh.quads)
+            cells["area_change"] = quality.area_change(mesh.points, X, mesh.quads)
+        write_vtu(self.ctx.output / f"{name}.vtu", X, {"quad": mesh.quads}, point_data, cells)
         if iteration != "final":
             self.series.append((iteration, f"{name}.vtu"))
             self._collection()
@@ -50,11 +76,6 @@ def run(scene, args, ctx) -> dict:
     problem = Problem(scene)
     pictures = Pictures(ctx, problem)
     d, s = scene.design, scene.optimizer
-    ctx.say(f"{scene.name}: {problem.n_design} design variables, {problem.model.mesh.n_elements} "
-            f"elements; {s.algorithm}, {d.objective} subject to {d.constraint} fraction <= "
-            f"{d.volume_fraction:g}; outputs in {ctx.output}")
-    ctx.say(f"{'iter':>5s} {'stage':>5s} {'objective':>12s} {'volume':>7s} {'g':>9s} {'change':>8s} "
-            f"{'beta':>5s} {'time':>7s}")
 
     def line(it):
         if not ctx.quiet:
@@ -63,12 +84,21 @@ def run(scene, args, ctx) -> dict:
                   file=sys.stderr if ctx.json else sys.stdout, flush=True)
 
     optimizer = Optimizer(problem, ctx.output, on_iteration=line, on_picture=pictures)
+    if args.resume:                                  # same scene and mesh, before writing
+        check_checkpoint(optimizer.checkpoint_path, problem)
+    ctx.say(f"{scene.name}: {problem.n_design} design variables, {problem.model.mesh.n_elements} "
+            f"elements; {s.algorithm}, {d.objective} subject to {d.constraint} fraction <= "
+            f"{d.volume_fraction:g}; outputs in {ctx.output}")
+    ctx.say(f"{'iter':>5s} {'stage':>5s} {'objective':>12s} {'volume':>7s} {'g':>9s} {'change':>8s} "
+            f"{'beta':>5s} {'time':>7s}")
+    ctx.begin()
     figures = optimizer.run(resume=args.resume)
+    ctx.extra["stop_reason"] = figures["stop_reason"]
     plot_convergence(ctx.output / "convergence.png", [h.__dict__ for h in optimizer.history],
-                     title=f"{scene.name}: {d.objective}")
+                     title=f"{scene.name}: {d.objective}", objective_label=OBJECTIVE_LABELS[d.objective])
     ctx.say(f"final {d.objective} {figures['objective']:.6g}, volume {figures['volume']:.4f} "
             f"(constraint {figures['constraint']:.2e}), non-discreteness "
             f"{figures['non_discreteness_percent']:.1f} %, {figures['iterations']} iterations, "
-            f"{figures['wall_time_s']:.0f} s")
-    figures["outputs"] = sorted(str(p) for p in ctx.output.iterdir())
+            f"{figures['wall_time_s']:.0f} s; stopped: {figures['stop_reason']}")
+    figures["outputs"] = sorted(str(p) for p in ctx.output.iterdir() if not p.name.startswith("."))
     return figures

@@ -1,13 +1,25 @@
-"""``tofsi solve SCENE``: forward analysis of the scene's design with the effects it enables."""
+"""``tofsi solve SCENE``: forward analysis of the scene's design with the effects it enables.
+
+A scene with a design region is analysed through the same design map as
+``tofsi optimize``: the uniform design at the volume bound, or a saved design
+(``design.initial`` or ``--design FILE``), filtered and projected with the
+parameters of continuation stage ``--stage`` (default 0), so ``solve`` of a
+design reproduces ``optimize``'s first iteration from it, and ``--stage N``
+with the ``stage`` of a run's ``result.json`` that run's final figures
+(``last``: the schedule's last stage, where a completed run ends).
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
 from tofsi import quality
-from tofsi.coupled import CoupledModel
+from tofsi.coupled import CoupledModel, continuation
+from tofsi.errors import InputError
 from tofsi.output import write_json, write_vtu
 from tofsi.plotting import plot_mesh, plot_nodal
+from tofsi.problem import Problem
+from tofsi.provenance import solve_settings
 
 
 def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None:
@@ -41,28 +53,67 @@ def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None
         scale = min(scale, 1.0) if state.x is not None else scale
         moved = mesh.points + scale * U
         plot_mesh(ctx.path(f"{name}_deformed.png"), moved, mesh.quads, state.rho,
-                  title=f"{model.scene.name}: structure displacement x {scale:.3g}",
-                  label="density", cmap="Greys", vmin=0, vmax=1)
+                  title=f"{model.scene.name}: structure displacement (magnified {scale:.3g} times)",
+                  label="density rho (0 fluid, 1 solid)", cmap="Greys", vmin=0, vmax=1)
+
+
+def design_densities(scene, args):
+    """``(model, rho, about, problem)``: the scene's design -- uniform, ``design.initial`` or
+    ``--design`` -- through the filter and projection of continuation stage ``--stage``, as
+    ``optimize`` maps it; scenes without a design region use their fixed densities (no problem)."""
+    stage_arg = str(getattr(args, "stage", "0"))
+    if not scene.has_design:
+        if scene.design.initial:
+            raise InputError("design.initial", scene.design.initial,
+                             "the scene has no design region (geometry.design) to apply a design to")
+        if stage_arg != "0":
+            raise InputError("--stage", stage_arg, "the scene has no design region (geometry.design)")
+        model = CoupledModel(scene)
+        return model, model.densities(), {}, None
+    d = scene.design
+    n_stages = d.n_stages
+    stage = n_stages - 1 if stage_arg == "last" else (int(stage_arg) if stage_arg.isdigit() else -1)
+    if not 0 <= stage < n_stages:
+        raise InputError("--stage", stage_arg, f"allowed: 0 to {n_stages - 1} or last")
+    problem = Problem(scene)                         # reads and checks design.initial
+    params = continuation(scene, stage)
+    problem.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q, coupling=params.coupling)
+    gamma = problem.initial_design()
+    about = {"design": d.initial or "uniform", "stage": stage, "beta": params.beta,
+             "penalty": params.penalty, "brinkman_q": params.brinkman_q}
+    return problem.model, problem.densities(gamma), about, problem
 
 
 def run(scene, args, ctx) -> dict:
-    model = CoupledModel(scene)
-    rho = model.densities()
+    model, rho, about, problem = design_densities(scene, args)
     fields = ", ".join(name for name, on in (("flow", model.flow), ("structure", model.structure),
                                              ("mesh motion", model.motion)) if on is not None)
     ctx.say(f"{scene.name}: {model.mesh.n_elements} quads; solving {fields}"
             + (f" ({scene.coupled.method} two-way coupling)" if model.two_way else ""))
-    state = model.solve(rho)
+    if about:
+        ctx.say(f"design: {about['design']} through the filter (radius {scene.design.filter_radius:g} m) "
+                f"and the projection of stage {about['stage']} (beta {about['beta']:g})")
+    with ctx.step(f"solving {fields} on {model.mesh.n_elements} quads"):
+        state = model.solve(rho, params=None if problem is None else problem.params)
+    if model.structure is not None:                  # metres of displacement are no result
+        model.structure.check_displacement(state.u)
     figures = {"scene": scene.name, "converged": state.converged, **model.figures(state),
-               "wall_time_s": state.reports["wall_time_s"]}
+               "wall_time_s": state.reports["wall_time_s"], **about}
+    if problem is not None:
+        figures["objective"] = problem.objective.value(model, state)
+        figures["volume"] = problem.volume_fraction.value(model, state)
     flow = state.reports.get("flow")
     if flow:
         figures["newton_iterations"] = flow["newton_iterations"]
-    for key in ("pressure_drop", "dissipated_power", "drag", "lift", "compliance", "max_displacement"):
+    for key in ("pressure_drop", "dissipated_power", "drag", "lift", "compliance", "max_displacement",
+                "volume"):
         if key in figures:
             ctx.say(f"  {key.replace('_', ' '):18s} {figures[key]:.6g}")
-    write_state(ctx, model, state)
-    write_json(ctx.path("solve.json"), {"figures": figures, "reports": state.reports})
+    ctx.begin()
+    with ctx.step("writing solution.vtu and pictures"):
+        write_state(ctx, model, state)
+    write_json(ctx.path("solve.json"), {"figures": figures, "settings": {**solve_settings(scene), **about},
+                                        "reports": state.reports})
     ctx.say("wrote " + ", ".join(ctx.written))
     figures["outputs"] = list(ctx.written)
     return figures

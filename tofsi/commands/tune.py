@@ -9,15 +9,17 @@ Writes ``tune.json`` (figures, the tuned design and every evaluation),
 
 from __future__ import annotations
 
-from tofsi.commands.move import write_moved_mesh
+from tofsi.commands.move import check_motion_inside, write_moved_mesh
 from tofsi.motion import motion_setup
 from tofsi.output import write_csv, write_json
+from tofsi.provenance import mover_settings, scene_tables
 from tofsi.tuning import tune
 
 
 def run(scene, args, ctx) -> dict:
     s = scene.tune
     setup = motion_setup(scene)
+    check_motion_inside(scene, setup)
     what = (f"{s.layers} layer factors" if s.parametrization == "layers"
             else "a decaying factor profile (amplitude, decay length)")
     ctx.say(f"{scene.name}: tuning {what} of the {scene.mover.name} mover ({scene.deformation.mode}) "
@@ -37,6 +39,7 @@ def run(scene, args, ctx) -> dict:
             f"+ {result.adjoints} adjoint solves, {result.wall_time_s:.1f} s ({result.stop})")
     if s.parametrization == "layers":
         ctx.say(f"use them with --set mover.layers=[{factors}]")
+    ctx.begin()
     best = result.best
     stiffening = {"stiffening": best.problem.stiffening}
     write_moved_mesh(ctx, setup, best.result.displacement, "tuned_mesh",
@@ -46,7 +49,9 @@ def run(scene, args, ctx) -> dict:
               [{"evaluation": i + 1, **{k: v for k, v in row.items() if k != "factors"},
                 **{f"factor_{k + 1}": f for k, f in enumerate(row["factors"])}}
                for i, row in enumerate(result.history)])
-    write_json(ctx.path("tune.json"), {"figures": figures, "history": result.history})
+    write_json(ctx.path("tune.json"), {"figures": figures, "settings": {**mover_settings(scene),
+                                                                      "tune": scene_tables(scene)["tune"]},
+                                     "history": result.history})
     ctx.say("wrote " + ", ".join(ctx.written))
     figures["outputs"] = list(ctx.written)
     return figures

@@ -22,56 +22,78 @@ class SparsePattern:
 
     rows ``(E, a)``, cols ``(E, b)``; :meth:`assemble` takes values ``(E, a, b)``.
     ``extra_diagonal`` adds diagonal slots (e.g. for Dirichlet rows) that
-    :meth:`assemble` fills from ``diagonal``.
+    :meth:`assemble` fills from ``diagonal``. ``keep`` ``(E, a, b)`` (boolean)
+    drops the element values where it is False (Dirichlet rows and columns) in
+    the scatter itself, without a masked copy of the element matrices; the
+    dropped entries stay in the pattern as zeros, so every matrix of a
+    pattern has the same structure and one solver analysis serves them all.
 
-    The CSR structure comes from scipy's COO-to-CSR conversion once; then
-    every triplet gets its slot in the CSR data array and each assembly is one
-    ``bincount``. Every assembly sums in the same order, so results never
-    depend on how many assemblies came before (bitwise reproducible runs).
+    On the first assembly the CSR structure comes from scipy's COO-to-CSR
+    conversion and every element value gets its slot in the CSR data array
+    (dropped values the slot ``nnz``, cut off); only the slots are kept (one
+    int64 per element value), the triplet indices are not. Each assembly is
+    then one ``bincount``, summing in the same order every time, so results
+    never depend on how many assemblies came before (bitwise reproducible runs).
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
-                 extra_diagonal: np.ndarray | None = None):
-        E, a = rows.shape
-        b = cols.shape[1]
-        diag = np.zeros(0, dtype=np.int64) if extra_diagonal is None else np.asarray(extra_diagonal)
-        self.rows = np.concatenate([np.broadcast_to(rows[:, :, None], (E, a, b)).ravel(), diag])
-        self.cols = np.concatenate([np.broadcast_to(cols[:, None, :], (E, a, b)).ravel(), diag])
+                 extra_diagonal: np.ndarray | None = None, keep: np.ndarray | None = None):
+        self.element_rows, self.element_cols = np.asarray(rows), np.asarray(cols)
+        E, a = self.element_rows.shape
+        b = self.element_cols.shape[1]
+        self.diagonal = (np.zeros(0, dtype=np.int64) if extra_diagonal is None
+                         else np.asarray(extra_diagonal, dtype=np.int64))
         self.shape = shape
         self.n_element_values = E * a * b
-        self.slot = None
-        self._csr = None                     # (indices, indptr) once known
+        self.keep = None if keep is None else np.broadcast_to(keep, (E, a, b))
+        self.element_slot = None             # (E a b,) slot of every element value (dropped: nnz)
+        self.diagonal_slot = None
+        self.indices = self.indptr = None
 
-    def _values(self, values, diagonal):
-        values = values.reshape(-1)
-        n_diag = self.rows.size - self.n_element_values
-        if n_diag:
-            d = np.broadcast_to(np.asarray(0.0 if diagonal is None else diagonal), (n_diag,))
-            values = np.concatenate([values, d])
-        return values
+    def _triplets(self):
+        E, a = self.element_rows.shape
+        b = self.element_cols.shape[1]
+        rows = np.concatenate([np.broadcast_to(self.element_rows[:, :, None], (E, a, b)).ravel(), self.diagonal])
+        cols = np.concatenate([np.broadcast_to(self.element_cols[:, None, :], (E, a, b)).ravel(), self.diagonal])
+        return rows.astype(np.int64), cols.astype(np.int64)
 
-    def _build_slots(self) -> None:
-        indices, indptr = self._csr
-        row_of = np.repeat(np.arange(self.shape[0], dtype=np.int64), np.diff(indptr))
-        keys = row_of * self.shape[1] + indices
-        self.slot = np.searchsorted(keys, self.rows.astype(np.int64) * self.shape[1] + self.cols)
+    def _ensure_slots(self) -> None:
+        if self.element_slot is not None:
+            return
+        rows, cols = self._triplets()
+        A = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=self.shape).tocsr()
+        A.sum_duplicates()
+        self.indices, self.indptr = A.indices, A.indptr
+        del A
+        row_of = np.repeat(np.arange(self.shape[0], dtype=np.int64), np.diff(self.indptr))
+        keys = row_of * self.shape[1] + self.indices
+        del row_of
+        slot = np.searchsorted(keys, rows * self.shape[1] + cols)
+        del keys, rows, cols
+        n = self.n_element_values
+        self.diagonal_slot = slot[n:].copy()
+        self.element_slot = (slot[:n] if self.keep is None
+                             else np.where(self.keep.ravel(), slot[:n], self.indices.size))
+
+    @property
+    def nnz(self) -> int:
+        self._ensure_slots()
+        return int(self.indices.size)
 
     def assemble(self, values: np.ndarray, diagonal: np.ndarray | float | None = None):
-        """CSR matrix from element values ``(E, a, b)`` (and the extra diagonal entries)."""
-        values = self._values(values, diagonal)
-        if self._csr is None:
-            A = sp.coo_matrix((np.ones(self.rows.size), (self.rows, self.cols)), shape=self.shape).tocsr()
-            A.sum_duplicates()
-            self._csr = (A.indices, A.indptr)
-        if self.slot is None:
-            self._build_slots()
-        nnz = self._csr[0].size
+        """CSR matrix from element values ``(E, a, b)`` and the extra diagonal entries
+        (element values first, then the diagonal, in that order every time)."""
+        self._ensure_slots()
+        nnz = self.nnz
+        values = values.reshape(-1)
         if np.iscomplexobj(values):
-            data = (np.bincount(self.slot, weights=values.real, minlength=nnz)
-                    + 1j * np.bincount(self.slot, weights=values.imag, minlength=nnz))
+            data = (np.bincount(self.element_slot, weights=values.real, minlength=nnz + 1)
+                    + 1j * np.bincount(self.element_slot, weights=values.imag, minlength=nnz + 1))[:nnz]
         else:
-            data = np.bincount(self.slot, weights=values, minlength=nnz)
-        return sp.csr_matrix((data, self._csr[0], self._csr[1]), shape=self.shape)
+            data = np.bincount(self.element_slot, weights=values, minlength=nnz + 1)[:nnz]
+        if self.diagonal_slot.size:
+            np.add.at(data, self.diagonal_slot, 0.0 if diagonal is None else diagonal)
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
 
 
 def assemble_vector(dofs: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:

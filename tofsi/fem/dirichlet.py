@@ -31,24 +31,20 @@ class DirichletOperator:
         self.free = np.flatnonzero(~self.is_fixed)
         self.keep = ~(self.is_fixed[rows][:, :, None] | self.is_fixed[cols][:, None, :])
         self.keep_rows = ~self.is_fixed[rows][:, :, None]
-        self.pattern = SparsePattern(rows, cols, (size, size), extra_diagonal=self.fixed)
+        self.pattern = SparsePattern(rows, cols, (size, size), extra_diagonal=self.fixed, keep=self.keep)
         self._row_pattern = None
 
     def matrix(self, Ke: np.ndarray):
         """``K_bc`` from element matrices ``(E, a, b)``."""
-        return self.pattern.assemble(np.where(self.keep, Ke, 0.0), diagonal=1.0)
+        return self.pattern.assemble(Ke, diagonal=1.0)
 
     def row_matrix(self, Ke: np.ndarray):
         """The true Jacobian of ``[P_f K x; x_p - g]``: fixed rows identity, free rows keep
         their fixed columns ``K_fp`` (needed where ``g`` depends on other fields)."""
         if self._row_pattern is None:
             self._row_pattern = SparsePattern(self.pattern_rows, self.pattern_cols, (self.size, self.size),
-                                              extra_diagonal=self.fixed)
-        return self._row_pattern.assemble(np.where(self.keep_rows, Ke, 0.0), diagonal=1.0)
-
-    def free_rows_vector(self, r: np.ndarray) -> np.ndarray:
-        """``r`` with the entries of fixed dofs zeroed (same as :meth:`homogenize`)."""
-        return self.homogenize(r)
+                                              extra_diagonal=self.fixed, keep=self.keep_rows)
+        return self._row_pattern.assemble(Ke, diagonal=1.0)
 
     def free_rows(self, M):
         """``M`` with the rows of fixed dofs zeroed (a block coupling into this field)."""

@@ -101,10 +101,13 @@ class FlowLinearization(_EliminatedLinearization):
         if other != "x":
             return None
         fl = self.flow
-        return fl.bc.free_rows(fl.shape_partial(self.value, self.X, self.rho, self.params))
+        return self.kept("F_x", lambda: fl.bc.free_rows(fl.shape_partial(self.value, self.X, self.rho,
+                                                                          self.params)))
 
     def density(self):
-        return self.flow.bc.free_rows(self.flow.density_partial(self.value, self.X, self.rho, self.params))
+        fl = self.flow
+        return self.kept("F_rho", lambda: fl.bc.free_rows(fl.density_partial(self.value, self.X, self.rho,
+                                                                              self.params)))
 
     def transpose_partials(self, lam):
         lam = self.block.homogenize(lam)
@@ -126,6 +129,7 @@ class FlowField(FieldBlock):
         self.flow = flow
         self.size = flow.size
         self.inputs = ("x",) if moving_mesh else ()
+        self.slow_couplings = self.inputs            # F_x: the shape derivative
 
     @property
     def fixed(self):
@@ -202,19 +206,19 @@ class StructureLinearization(_EliminatedLinearization):
     def coupling(self, other):
         st, w = self.st, self.fields["w"]
         if other == "w":
-            return st.bc.free_rows(st.fluid_partial(self.X, self.rho, self.params))
+            return self.kept("S_w", lambda: st.bc.free_rows(st.fluid_partial(w, self.X, self.rho, self.params)))
         if other == "x" and "x" in self.block.inputs:
-            return st.bc.free_rows(st.shape_partial(w, self.X, self.rho, self.params))
+            return self.kept("S_x", lambda: st.bc.free_rows(st.shape_partial(w, self.X, self.rho, self.params)))
         return None
 
     def density(self):
-        return self.st.bc.free_rows(self.st.density_partial(self.value, self.fields["w"], self.X,
-                                                             self.rho, self.params))
+        return self.kept("S_rho", lambda: self.st.bc.free_rows(
+            self.st.density_partial(self.value, self.fields["w"], self.X, self.rho, self.params)))
 
     def transpose_partials(self, lam):
         lam = self.block.homogenize(lam)
         st, w = self.st, self.fields["w"]
-        bars = {"w": st.fluid_partial_transpose(lam, self.X, self.rho, self.params)}
+        bars = {"w": st.fluid_partial_transpose(lam, w, self.X, self.rho, self.params)}
         if "x" in self.block.inputs:
             bars["x"] = self.coupling("x").T @ lam
         rho_bar = np.einsum("ea,ea->e", st.density_vectors(self.value, w, self.X, self.rho, self.params),
@@ -231,6 +235,7 @@ class StructureField(FieldBlock):
         self.structure = structure
         self.size = structure.size
         self.inputs = ("w", "x") if moving_mesh else ("w",)
+        self.slow_couplings = ("x",) if moving_mesh else ()     # S_x: the load's shape derivative
 
     @property
     def fixed(self):
@@ -304,7 +309,7 @@ class MotionLinearization(Linearization):
         return self.motion.transposed_solve(self.value, self.rho, b, self._solver)
 
     def coupling(self, other):
-        return self.motion.structure_partial(self.rho) if other == "u" else None
+        return self.kept("D_u", lambda: self.motion.structure_partial(self.rho)) if other == "u" else None
 
     def transpose_partials(self, lam):
         u_bar, rho_bar = self.motion.partials_transpose(self.value, self.fields["u"], self.rho, lam)

@@ -29,7 +29,7 @@ import scipy.sparse as sp
 
 from tofsi.blocks import Continuation
 from tofsi.errors import InputError, NumericalError
-from tofsi.fem.assembly import assemble_vector, element_dofs
+from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.geometry import map_points, physical_gradients
@@ -38,6 +38,7 @@ from tofsi.iteration import backtracking, forcing_term
 from tofsi.linalg import DirectSolver, RecyclingSolver, nested_dissection
 from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_element,
                                         velocity_fields)
+from tofsi.physics.fluid_shape import fluid_shape
 
 log = logging.getLogger(__name__)
 ROUND_OFF = 64 * np.finfo(float).eps        # componentwise backward error that counts as exact
@@ -111,6 +112,8 @@ class Flow:
         if inlet and np.abs(self.values).max() == 0.0:
             raise InputError("fluid.inlets", list(settings.inlets), "no inflow: every segment is empty")
         self._perm = None
+        self._shape_kept = None           # (key, (R_e, dR_e/dXe)) of the last shape evaluation
+        self._shape_pattern = None        # CSR pattern of F_x
 
     def _prescribe(self, side: str, segments, fixed: list) -> None:
         """Parabolic normal velocity ``4 U (y - y0)(y1 - y) / (y1 - y0)^2`` on segments of a side
@@ -172,16 +175,34 @@ class Flow:
         Re, Ke = self.element_residual(w, x, rho, density=density, params=params)
         return self.bc.matrix(Ke), assemble_vector(self.dofs, Re, self.size), Ke
 
-    def shape_partial(self, w, x=None, rho=None, params=None) -> sp.csr_matrix:
-        """``F_x`` (size x 2n): derivative with respect to the mesh displacement (complex step)."""
+    def shape_elements(self, w, x=None, rho=None, params=None):
+        """``(R_e (E, 22), dR_e/dXe (E, 22, 8))`` on the mesh moved by ``x``: the analytic shape
+        derivative (:func:`~tofsi.physics.fluid_shape.fluid_shape`), or with a body force the
+        complex step through :meth:`element_residual`. The last evaluation is kept, keyed by
+        every input (the flow's ``F_x`` and the fluid load's ``S_x`` share it)."""
+        rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(),
+               params, self.density, self.symmetric, self.settings, self.body_force)
+        if self._shape_kept is not None and self._shape_kept[0] == key:
+            return self._shape_kept[1]
         Xe = self.corners(x)
-        cols = element_dofs(self.mesh.quads, 2)                 # (E, 8) coordinate dofs
-        vals = corner_derivatives(lambda Xc: self.element_residual(w, None, rho, jacobian=False, Xe=Xc,
-                                                                   params=params)[0], Xe)   # (E, 22, 8)
-        rows = np.broadcast_to(self.dofs[:, :, None], vals.shape)
-        cols = np.broadcast_to(cols[:, None, :], vals.shape)
-        return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())),
-                             shape=(self.size, 2 * self.mesh.n_nodes))
+        if self.body_force is None:
+            ve, pe = self.split(w)
+            values = fluid_shape(Xe, ve, pe, self.alpha(rho, params), self.density, self.settings.viscosity,
+                                 self.symmetric)
+        else:
+            values = (self.element_residual(w, None, rho, jacobian=False, Xe=Xe, params=params)[0],
+                      corner_derivatives(lambda Xc: self.element_residual(w, None, rho, jacobian=False, Xe=Xc,
+                                                                          params=params)[0], Xe))
+        self._shape_kept = (key, values)
+        return values
+
+    def shape_partial(self, w, x=None, rho=None, params=None) -> sp.csr_matrix:
+        """``F_x`` (size x 2n): derivative with respect to the mesh displacement."""
+        if self._shape_pattern is None:
+            self._shape_pattern = SparsePattern(self.dofs, element_dofs(self.mesh.quads, 2),
+                                                (self.size, 2 * self.mesh.n_nodes))
+        return self._shape_pattern.assemble(self.shape_elements(w, x, rho, params)[1])
 
     def density_vectors(self, w, x, rho, params=None) -> np.ndarray:
         """``dF_e/drho_e`` ``(E, 22)``: the Brinkman friction's derivative per element."""
@@ -216,7 +237,7 @@ class Flow:
             self._perm = nested_dissection(self.grid(), last=self.pressure_dofs)
         return DirectSolver(A, perm=self._perm)
 
-    def solve(self, x=None, rho=None, w0=None, progress=None, params=None) -> tuple[np.ndarray, FlowReport]:
+    def solve(self, x=None, rho=None, w0=None, params=None) -> tuple[np.ndarray, FlowReport]:
         """Steady flow on the mesh moved by ``x`` with densities ``rho``; raises on failure."""
         solution = self.newton_solve(x, rho, w0, params)
         return solution.w, solution.report
@@ -278,7 +299,8 @@ class Flow:
             r = self.bc.homogenize(R)
             norm = float(np.linalg.norm(r))
             history.append(norm)
-            log.debug("flow Newton %d (density %g): |F| = %.3e", it, density, norm)
+            log.info("flow Newton %d (density %.4g): |R| = %.3e, target %.3e", it, density, norm,
+                     s.newton_tol * scale)
             if not np.isfinite(norm):
                 raise NumericalError("flow solve: non-finite residual", {"history": history})
             target = s.newton_tol * scale

@@ -1,37 +1,61 @@
-"""The fluid's force on the structure in the unified domain (density-weighted volume form).
+"""The fluid's force on the solid phase in the unified Brinkman domain, on the Q1 (structure) nodes.
 
-With a sharp interface the fluid pulls on the solid with the traction
-``sigma n_s`` (``n_s`` the solid's outward normal); its virtual work is
-``int_Gamma w . sigma n_s``. With a solid indicator ``Psi`` (1 in solid, 0 in
-fluid) the divergence theorem turns it into a volume integral,
+Two forms (scene key ``structure.load``), both functions of the flow state:
 
-    f(w_s) = int Psi [ sigma_ij dw_i/dx_j + w_i d sigma_ij/dx_j ] dOmega,
+``reaction`` (default) -- the momentum-consistent reaction. Per element, on the
+Q2 velocity rows ``b`` that are not Dirichlet (``free``),
+
+    rows_e = (alpha_e - alpha_min) A_e w_e + psi_e (R_e(w_e) - alpha_e A_e w_e),
+    f_(a i) = sum_e sum_b T_ba rows_e(b i),
+
+with ``R_e`` the fluid element residual (viscous, pressure, convection and
+Brinkman terms), ``A_e w_e = int N_b v_i`` its Brinkman part per unit
+friction, ``psi_e = rho_e^k`` and ``T_ba = M_a(x_b)`` the Q1 shape functions
+at the Q2 nodes (``M_a = sum_b T_ba N_b``), so ``f`` is the residual tested with
+the structure's shape functions. For 0/1 densities and a converged flow it is
+minus the fluid elements' residual on the solid's boundary rows: the
+reaction force of the Brinkman state on the body, node by node. As the
+friction grows the Brinkman state tends to the no-slip state on the same
+mesh and the load to the no-slip body's reaction (error ~ mu / (alpha h^2);
+see ``docs/design.md``); Dirichlet rows (a wall under a clamped solid) carry
+no load, and the resultant is the drag and lift. Gray elements carry their
+Brinkman exchange plus ``psi`` times their own stress residual, smooth in rho.
+
+``stress-divergence`` -- Lundgaard et al. (2018, eq. 3) with the viscous
+stress added (Abdelhamid & Czekanski's total stress):
+
+    f_(a i) = sum_e psi_e int_e [sigma_ij dM_a/dx_j + M_a d sigma_ij/dx_j],
     sigma = -p I + mu (grad v + grad v^T),
-    d sigma_ij / dx_j = -dp/dx_i + mu (lap v_i + d(div v)/dx_i),
 
-Lundgaard et al. (2018, eq. 3) with the viscous stress added (the total
-stress, as in Abdelhamid & Czekanski). Here ``Psi_e = rho_e``, the element's
-physical density, and the integral runs on the current (moved) geometry:
+evaluated inside the solid, where the unresolved Brinkman layer loses most of
+the viscous shear (kept to reproduce published results). It is linear in
+``w``: ``f_e = psi_e B_e(Xe) w_e``.
 
-    f_(a i) = sum_e rho_e int_e [sigma_ij dM_a/dx_j + M_a d sigma_ij/dx_j],
-
-``M`` the Q1 (structure) shape functions; the velocity's second derivatives
-are those of the Q2 basis on the bilinear element. The load is linear in
-``w``: ``f_e = rho_e B_e(Xe) w_e`` with ``B_e`` ``(E, 8, 22)``; its total over
-all nodes is the resultant force on the solid (drag, lift), because the
-``M_a`` sum to one.
+Every form gives its element loads and their partial derivatives with
+respect to ``w`` and ``rho`` from one kernel call, and with respect to the
+mesh position analytically (:mod:`tofsi.physics.fluid_shape`; the tests
+check them against the complex step through the same kernels).
 """
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
+from tofsi.blocks import Continuation
+from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.geometry import physical_gradients, physical_hessians
-from tofsi.physics.fluid_kernel import N1, N2, POINTS, WEIGHTS
+from tofsi.fem.shapes import Q2_NODES, shape_functions
+from tofsi.physics.fluid_kernel import N1, N2, POINTS, WEIGHTS, brinkman_partial
+from tofsi.physics.fluid_shape import mass_shape, stress_load_shape
+
+LOAD_FORMS = ("reaction", "stress-divergence")
+Q2_TO_Q1, _ = shape_functions(1, Q2_NODES)                      # (9, 4): T_ba = M_a(x_b)
+ROWS_TO_CORNERS = np.kron(Q2_TO_Q1.T, np.eye(2))                 # (8, 18): f_e = ROWS_TO_CORNERS @ rows_e
 
 
 def load_operator(Xe: np.ndarray, viscosity: float) -> np.ndarray:
-    """``B_e`` ``(E, 8, 22)``: element load per unit weight, ``f_e = B_e w_e`` (complex-safe)."""
+    """``B_e`` ``(E, 8, 22)`` of the stress-divergence form, ``f_e = psi_e B_e w_e`` (complex-safe)."""
     E = Xe.shape[0]
     mu = viscosity
     g2, det = physical_gradients(Xe, 2, POINTS)                     # (E, G, 9, 2)
@@ -57,3 +81,156 @@ def load_operator(Xe: np.ndarray, viscosity: float) -> np.ndarray:
     out[:, :, :18] = B.reshape(E, 8, 18)
     out[:, :, 18:] = P.reshape(E, 8, 4)
     return out
+
+
+def brinkman_operator(Xe: np.ndarray) -> np.ndarray:
+    """``A_e`` ``(E, 18, 22)``: ``A[2b+i, 2c+i] = int_e N_b N_c`` [m^2] (complex-safe in ``Xe``)."""
+    _, det = physical_gradients(Xe, 1, POINTS)
+    NN = np.matmul((N2[None] * (det * WEIGHTS)[..., None]).transpose(0, 2, 1), N2)   # (E, 9, 9)
+    A = np.zeros((Xe.shape[0], 18, 22), dtype=NN.dtype)
+    A[:, 0:18:2, 0:18:2] = NN
+    A[:, 1:18:2, 1:18:2] = NN
+    return A
+
+
+class FluidForce:
+    """The fluid's force on the solid phase of a :class:`~tofsi.physics.flow.Flow` (nodal, on Q1).
+
+    form : ``"reaction"`` or ``"stress-divergence"`` (see the module docstring)
+    ``params`` default to :class:`~tofsi.blocks.Continuation` (q, load exponent k).
+    """
+
+    def __init__(self, flow, form: str = "reaction"):
+        if form not in LOAD_FORMS:
+            raise ValueError(f"unknown load form {form!r}; one of {LOAD_FORMS}")
+        self.flow, self.form = flow, form
+        self.dofs = element_dofs(flow.mesh.quads, 2)                           # (E, 8)
+        self.size = 2 * flow.mesh.n_nodes
+        self.free = (~flow.bc.is_fixed[flow.dofs[:, :18]]).astype(float)       # (E, 18)
+        self._operators = None            # (x bytes, B) of the stress-divergence form
+        self._last = None                 # (key, element values) of the last evaluation
+        self._fluid_pattern = None        # CSR patterns of df/dw and df/dx (made on first use)
+        self._shape_pattern = None
+
+    # ---- weights -----------------------------------------------------------------------
+    @staticmethod
+    def weight(rho, params: Continuation | None) -> np.ndarray:
+        """``psi = rho^k`` per element (``k`` the load exponent)."""
+        k = (params or Continuation()).load_exponent
+        return np.asarray(rho, dtype=float) ** k
+
+    @staticmethod
+    def weight_derivative(rho, params: Continuation | None) -> np.ndarray:
+        k = (params or Continuation()).load_exponent
+        return k * np.asarray(rho, dtype=float) ** (k - 1.0)
+
+    # ---- element kernels ---------------------------------------------------------------------
+    def stress_operators(self, x=None) -> np.ndarray:
+        """``B_e`` on the mesh moved by ``x`` (kept while ``x`` does not change)."""
+        key = None if x is None else np.asarray(x).tobytes()
+        if self._operators is None or self._operators[0] != key:
+            self._operators = (key, load_operator(self.flow.corners(x), self.flow.settings.viscosity))
+        return self._operators[1]
+
+    def _reaction(self, w, rho, params, Xe, partials: bool):
+        """Element loads ``(E, 8)`` of the reaction form on corners ``Xe`` (complex-safe), and with
+        ``partials`` ``df/dw_e (E, 8, 22)`` and ``df/drho_e (E, 8)``."""
+        fl = self.flow
+        E = Xe.shape[0]
+        brinkman = fl.brinkman(params)
+        alpha = brinkman(rho)
+        psi = self.weight(rho, params)
+        Re, Ke = fl.element_residual(w, None, rho, jacobian=partials, Xe=Xe, params=params)
+        we = w[fl.dofs]
+        unit = brinkman_partial(Xe, we[:, :18].reshape(E, 9, 2))[:, :18]      # int N_b v_i (E, 18)
+        stress = Re[:, :18] - alpha[:, None] * unit                            # R_e without friction
+        rows = self.free * ((alpha - brinkman.alpha_min)[:, None] * unit + psi[:, None] * stress)
+        fe = rows @ ROWS_TO_CORNERS.T
+        if not partials:
+            return fe, None, None
+        A = brinkman_operator(Xe)
+        dstress = Ke[:, :18, :] - alpha[:, None, None] * A
+        dw = np.matmul(ROWS_TO_CORNERS, self.free[..., None]
+                       * ((alpha - brinkman.alpha_min)[:, None, None] * A + psi[:, None, None] * dstress))
+        # the stress part does not depend on alpha: d rows/d alpha = free unit, d rows/d psi = free stress
+        dalpha = (self.free * unit) @ ROWS_TO_CORNERS.T
+        dpsi = (self.free * stress) @ ROWS_TO_CORNERS.T
+        drho = brinkman.derivative(rho)[:, None] * dalpha + self.weight_derivative(rho, params)[:, None] * dpsi
+        return fe, dw, drho
+
+    def elements(self, w, x, rho, params=None, partials: bool = False):
+        """``(f_e (E, 8), df_e/dw_e (E, 8, 22) or None, df_e/drho_e (E, 8) or None)`` at ``(w, x, rho)``.
+
+        The last evaluation is kept, keyed by every input (``w``, ``x``, ``rho``, ``params``).
+        """
+        rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(), params)
+        if self._last is not None and self._last[0] == key and (self._last[1][1] is not None or not partials):
+            return self._last[1]
+        if self.form == "reaction":
+            values = self._reaction(w, rho, params, self.flow.corners(x), partials)
+        else:
+            B = self.stress_operators(x)
+            Bw = np.einsum("eab,eb->ea", B, w[self.flow.dofs])
+            psi = self.weight(rho, params)
+            values = (Bw * psi[:, None], B * psi[:, None, None] if partials else None,
+                      Bw * self.weight_derivative(rho, params)[:, None] if partials else None)
+        self._last = (key, values)
+        return values
+
+    # ---- global quantities ----------------------------------------------------------------------
+    def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
+        """Nodal load ``f`` (2n,) [N/m] on the Q1 nodes."""
+        return assemble_vector(self.dofs, self.elements(w, x, rho, params)[0], self.size)
+
+    def resultant(self, w, x=None, rho=None, params=None) -> tuple[float, float]:
+        """Drag and lift [N/m]: the load's resultant (the Q1 shape functions sum to one)."""
+        fe = self.elements(w, x, rho, params)[0]
+        return float(fe[:, 0::2].sum()), float(fe[:, 1::2].sum())
+
+    def fluid_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
+        """``df/dw`` (2n x size of w)."""
+        if self._fluid_pattern is None:
+            self._fluid_pattern = SparsePattern(self.dofs, self.flow.dofs, (self.size, self.flow.size))
+        return self._fluid_pattern.assemble(self.elements(w, x, rho, params, partials=True)[1])
+
+    def fluid_partial_transpose(self, lam, w, x, rho, params=None) -> np.ndarray:
+        """``(df/dw)^T lam`` (size of w) without assembling ``df/dw``."""
+        dw = self.elements(w, x, rho, params, partials=True)[1]
+        return assemble_vector(self.flow.dofs, np.einsum("eab,ea->eb", dw, lam[self.dofs]), self.flow.size)
+
+    def density_vectors(self, w, x, rho, params=None) -> np.ndarray:
+        """``df_e/drho_e`` ``(E, 8)``."""
+        return self.elements(w, x, rho, params, partials=True)[2]
+
+    def shape_elements(self, w, x, rho, params=None) -> np.ndarray:
+        """``df_e/dXe`` ``(E, 8, 8)``, analytic (:mod:`tofsi.physics.fluid_shape`).
+
+        Reaction form: ``d rows_e = free ((alpha - alpha_min - psi alpha) d(A_e w_e) + psi dR_e)``
+        with the flow's ``dR_e/dXe`` (:meth:`~tofsi.physics.flow.Flow.shape_elements`, shared
+        with ``F_x``); stress-divergence form: ``psi_e d(B_e w_e)``.
+        """
+        fl = self.flow
+        rho = np.zeros(fl.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        psi = self.weight(rho, params)
+        ve, pe = fl.split(w)
+        Xe = fl.corners(x)
+        if self.form == "stress-divergence":
+            return stress_load_shape(Xe, ve, pe, fl.settings.viscosity) * psi[:, None, None]
+        brinkman = fl.brinkman(params)
+        alpha = brinkman(rho)
+        dR = fl.shape_elements(w, x, rho, params)[1][:, :18]
+        drows = ((alpha - brinkman.alpha_min - psi * alpha)[:, None, None] * mass_shape(Xe, ve)
+                 + psi[:, None, None] * dR)
+        return np.matmul(ROWS_TO_CORNERS, self.free[..., None] * drows)
+
+    def shape_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
+        """``df/dx`` (2n x 2n)."""
+        if self._shape_pattern is None:
+            self._shape_pattern = SparsePattern(self.dofs, self.dofs, (self.size, self.size))
+        return self._shape_pattern.assemble(self.shape_elements(w, x, rho, params))
+
+    def shape_partial_transpose(self, lam, w, x, rho, params=None) -> np.ndarray:
+        """``(df/dx)^T lam`` (2n,) without assembling ``df/dx``."""
+        return assemble_vector(self.dofs, np.einsum("eab,ea->eb", self.shape_elements(w, x, rho, params),
+                                                    lam[self.dofs]), self.size)

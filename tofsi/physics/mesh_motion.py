@@ -15,10 +15,13 @@ studies (:mod:`tofsi.motion`). Two forms, chosen by the scene:
   densities and is differentiable in rho.
 
 Layered stiffening factors (``mover.layers``) apply to the element layers
-counted from the interface of the fixed solid. With ``mover.band`` only the
-quads of a band around the structure move, the band's outer edge held fixed
-(:mod:`tofsi.band`); every map below keeps its full size (2n), the nodes
-outside the band being fixed ones.
+counted from the interface of the fixed solid, or in design scenes, with
+``mover.layers_from = "density"`` (the default), to the layers grown from the
+densities themselves (:class:`~tofsi.physics.indicators.DensityLayers`): the
+stiffening follows the evolving design and is differentiable in rho.
+With ``mover.band`` only the quads of a band around the structure move, the
+band's outer edge held fixed (:mod:`tofsi.band`); every map below keeps its
+full size (2n), the nodes outside the band being fixed ones.
 """
 
 from __future__ import annotations
@@ -31,39 +34,11 @@ from movers.base import MotionProblem, MoveResult
 from tofsi.band import find_band
 from tofsi.layers import element_layers, stiffening_field
 from tofsi.mesh import FLUID, SOLID
+from tofsi.physics.indicators import DensityLayers, solid_indicator
+
+__all__ = ["MeshMotion", "solid_indicator"]
 
 LAYERS_SHOWN = 10          # element layers counted (and written to outputs) at least
-
-
-def node_element_table(quads: np.ndarray, n_nodes: int) -> np.ndarray:
-    """Elements around each node ``(n, m)``, padded with -1."""
-    nodes = quads.ravel()
-    elems = np.repeat(np.arange(len(quads)), quads.shape[1])
-    order = np.argsort(nodes, kind="stable")
-    nodes, elems = nodes[order], elems[order]
-    counts = np.bincount(nodes, minlength=n_nodes)
-    starts = np.cumsum(counts) - counts
-    table = np.full((n_nodes, counts.max()), -1, dtype=np.int64)
-    table[nodes, np.arange(nodes.size) - starts[nodes]] = elems
-    return table
-
-
-def solid_indicator(rho: np.ndarray, quads: np.ndarray, n_nodes: int):
-    """``s (n,) = 1 - prod_{e at i}(1 - rho_e)`` and ``ds/drho`` as a sparse ``(n, E)`` matrix.
-
-    A polynomial in rho, so smooth for any values (also slightly outside [0, 1]).
-    """
-    rho = np.asarray(rho, dtype=float)
-    table = node_element_table(quads, n_nodes)
-    valid = table >= 0
-    t = np.where(valid, 1.0 - rho[np.where(valid, table, 0)], 1.0)           # (n, m)
-    s = 1.0 - np.prod(t, axis=1)
-    ones = np.ones((n_nodes, 1))
-    before = np.cumprod(np.hstack([ones, t[:, :-1]]), axis=1)                # prod of t[:, :k]
-    after = np.cumprod(np.hstack([ones, t[:, :0:-1]]), axis=1)[:, ::-1]      # prod of t[:, k+1:]
-    others = before * after
-    rows = np.repeat(np.arange(n_nodes), table.shape[1])[valid.ravel()]
-    return s, sp.csr_matrix((others[valid], (rows, table[valid])), shape=(n_nodes, len(rho)))
 
 
 class MeshMotion:
@@ -80,6 +55,10 @@ class MeshMotion:
         self.layer = element_layers(mesh.incidence, mesh.interface_nodes, ~solid,
                                     n_layers=max(len(scene.mover.layers), LAYERS_SHOWN))
         factors = stiffening_field(self.layer, scene.mover.layers)
+        self.density_layers = None
+        if self.blended and scene.mover.layers and scene.mover.layers_from == "density":
+            self.density_layers = DensityLayers(mesh.quads, mesh.n_nodes, scene.mover.layers)
+            factors = np.ones(mesh.n_elements)             # the layers come with the densities
         if self.blended:
             moving, fixed = np.arange(mesh.n_elements), boundary
             self.follows = np.setdiff1d(np.arange(mesh.n_nodes), boundary)
@@ -115,7 +94,9 @@ class MeshMotion:
         if not self.blended:
             return self.base
         s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
-        return self.base.with_data(blend=s)
+        if self.density_layers is None:
+            return self.base.with_data(blend=s)
+        return self.base.with_data(blend=s, stiffening=self.density_layers.factors(rho)[self.moving])
 
     def target(self, u: np.ndarray) -> np.ndarray:
         """The motion the mover is given ``(n, 2)``: the structure's where nodes follow it, else 0."""
@@ -129,12 +110,18 @@ class MeshMotion:
         u_bar[self.follows] = np.asarray(t_bar).reshape(-1, 2)[self.follows]
         return u_bar.ravel()
 
-    def density_transpose(self, rho, s_bar: np.ndarray) -> np.ndarray:
-        """Chain the blend's adjoint ``s_bar`` (n,) to ``rho_bar (E,)`` (stiffening does not depend on rho)."""
+    def density_transpose(self, rho, s_bar: np.ndarray, f_bar: np.ndarray | None = None) -> np.ndarray:
+        """Chain the blend's adjoint ``s_bar`` (n,) and the stiffening factors' ``f_bar`` (per
+        moving quad) to ``rho_bar (E,)`` (fixed-solid layers do not depend on rho)."""
         if not self.blended:
             return np.zeros(self.mesh.n_elements)
         _, ds = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
-        return ds.T @ s_bar
+        rho_bar = ds.T @ s_bar
+        if self.density_layers is not None and f_bar is not None:
+            full = np.zeros(self.mesh.n_elements)
+            full[self.moving] = f_bar
+            rho_bar = rho_bar + self.density_layers.transpose(rho, full)
+        return rho_bar
 
     # ---- moving and derivatives ------------------------------------------------------
     def move(self, u, rho=None, progress=None) -> MoveResult:
@@ -147,8 +134,8 @@ class MeshMotion:
 
     def vjp(self, result: MoveResult, x_bar, rho=None):
         """``(u_bar (2n,), rho_bar (E,))`` for ``x_bar`` on the mesh displacement."""
-        t_bar, _, s_bar = self.mover.vjp(result.problem, result, x_bar)
-        return self.target_transpose(t_bar), self.density_transpose(rho, s_bar)
+        t_bar, f_bar, s_bar = self.mover.vjp(result.problem, result, x_bar)
+        return self.target_transpose(t_bar), self.density_transpose(rho, s_bar, f_bar)
 
     def residual(self, x, u, rho=None):
         """``D (2n,)`` and ``D_x`` (true Jacobian) for residual movers."""
@@ -169,8 +156,8 @@ class MeshMotion:
 
     def partials_transpose(self, x, u, rho, lam):
         """``lam^T D_u`` (2n,) and ``lam^T D_rho`` (E,) for residual movers (no solve)."""
-        t_bar, _, s_bar = self.mover.residual_partials(self.problem(rho), x, self.target(u), lam)
-        return self.target_transpose(t_bar), self.density_transpose(rho, s_bar)
+        t_bar, f_bar, s_bar = self.mover.residual_partials(self.problem(rho), x, self.target(u), lam)
+        return self.target_transpose(t_bar), self.density_transpose(rho, s_bar, f_bar)
 
     def transposed_solve(self, x, rho, rhs, solver=None) -> np.ndarray:
         """``D_x^-T rhs`` at ``x`` (residual movers); ``solver`` from the forward move."""

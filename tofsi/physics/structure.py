@@ -3,17 +3,17 @@
 Small-strain plane-strain elasticity on Q1, over the whole channel (unified
 domain): element moduli by SIMP, ``E_e = Emin + rho_e^p (E0 - Emin)``, on the
 reference mesh; clamped on the scene's channel sides. The load ``f`` is the
-fluid's total stress transferred in the density-weighted volume form of
-:mod:`tofsi.physics.fluid_load` with weight ``Psi_e = rho_e^k``, integrated on
-the moved mesh ``X + x``. ``k = 1`` is Lundgaard et al.'s choice; since a
-gray element's displacement then grows like ``rho^(1 - p)`` as it empties,
-``k = p`` keeps it bounded (robust two-way coupling).
+fluid's force on the solid phase, :class:`~tofsi.physics.fluid_load.FluidForce`
+(``structure.load``: the momentum-consistent reaction by default), on the
+moved mesh ``X + x``, with the solid phase weighted by ``psi_e = rho_e^k``.
+``k = 1`` is Lundgaard et al.'s choice; since a gray element's displacement
+then grows like ``rho^(1 - p)`` as it empties, ``k = p`` keeps it bounded
+(robust two-way coupling).
 
 The SIMP exponent ``p`` and the load exponent ``k`` are inputs of every call
 (a :class:`~tofsi.blocks.Continuation`), never stored state. Partial
-derivatives: ``S_u = K_s`` (constrained), ``S_w = -Psi B``,
-``S_x = -df/dx`` (complex step through the load kernel) and
-``S_rho = E'(rho) K0 u - Psi' B w``.
+derivatives: ``S_u = K_s`` (constrained), ``S_w = -df/dw``, ``S_x = -df/dx``
+and ``S_rho = E'(rho) K0 u - df/drho``.
 """
 
 from __future__ import annotations
@@ -22,14 +22,36 @@ import numpy as np
 import scipy.sparse as sp
 
 from tofsi.blocks import Continuation
-from tofsi.errors import InputError
+from tofsi.errors import InputError, NumericalError
 from tofsi.fem.assembly import assemble_vector, element_dofs
-from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.interpolation import SIMP
 from tofsi.linalg import DirectSolver, nested_dissection
-from tofsi.physics.fluid_load import load_operator
+from tofsi.mesh import DESIGN, SOLID
+from tofsi.physics.fluid_load import FluidForce
+
+
+def check_held(mesh, clamped_nodes: np.ndarray, sides) -> None:
+    """Every connected region of solid (or design) elements must touch a clamped node: a
+    floating solid has no equilibrium under a load (an input error, not a huge displacement)."""
+    from scipy.sparse.csgraph import connected_components
+    solid = np.flatnonzero(np.isin(mesh.region, (SOLID, DESIGN)))
+    if solid.size == 0:
+        return
+    inc = mesh.incidence[solid]                                      # (S, n)
+    _, label = connected_components(inc @ inc.T, directed=False)
+    held = np.zeros(mesh.n_nodes, dtype=bool)
+    held[clamped_nodes] = True
+    touches = np.asarray(inc @ held.astype(float)).ravel() > 0        # per solid element
+    held_regions = np.unique(label[touches])
+    floating = np.setdiff1d(np.unique(label), held_regions)
+    if floating.size:
+        centre = mesh.centroids[solid[label == floating[0]]].mean(axis=0)
+        raise InputError("structure.clamped", list(sides),
+                         f"the solid region around ({centre[0]:.3g}, {centre[1]:.3g}) m touches none of "
+                         "these channel sides, so nothing holds it; clamp a side it touches (or set "
+                         "effects.structure = \"none\")")
 
 
 class Structure:
@@ -41,6 +63,7 @@ class Structure:
 
     def __init__(self, mesh, settings, flow=None):
         self.mesh, self.settings, self.flow = mesh, settings, flow
+        self.force = None if flow is None else FluidForce(flow, settings.load)
         self.E0 = settings.youngs_modulus
         self.Emin = settings.e_min_ratio * settings.youngs_modulus
         self.defaults = Continuation(load_exponent=settings.load_exponent)
@@ -49,11 +72,11 @@ class Structure:
         clamped = np.unique(np.concatenate([mesh.side_nodes(s) for s in settings.clamped]))
         if clamped.size == 0:
             raise InputError("structure.clamped", list(settings.clamped), "no side to clamp")
+        check_held(mesh, clamped, settings.clamped)
         self.bc = DirichletOperator(self.dofs, self.dofs, self.size, element_dofs(clamped[:, None], 2).ravel())
         self.K0 = element_stiffness(mesh.points[mesh.quads], *lame(1.0, settings.poisson_ratio))
         self.grid = np.repeat(mesh.grid_positions(), 2, axis=0)      # (2n, 2) fine-grid positions
         self.perm = nested_dissection(self.grid)
-        self._loads = None                     # (x bytes, B) of the last load operators
 
     def _params(self, params):
         return self.defaults if params is None else params
@@ -75,27 +98,9 @@ class Structure:
         return DirectSolver(self.stiffness(rho, params), perm=self.perm)
 
     # ---- fluid load --------------------------------------------------------------
-    def weight(self, rho, params=None) -> np.ndarray:
-        """Load weight ``Psi = rho^k`` per element."""
-        return np.asarray(rho, dtype=float) ** self._params(params).load_exponent
-
-    def weight_derivative(self, rho, params=None) -> np.ndarray:
-        k = self._params(params).load_exponent
-        return k * np.asarray(rho, dtype=float) ** (k - 1.0)
-
-    def load_operators(self, x=None) -> np.ndarray:
-        """``B_e`` on the mesh moved by ``x`` (kept while ``x`` does not change: one-way
-        coupling computes it once per optimization)."""
-        key = None if x is None else np.asarray(x).tobytes()
-        if self._loads is None or self._loads[0] != key:
-            self._loads = (key, load_operator(self.flow.corners(x), self.flow.settings.viscosity))
-        return self._loads[1]
-
-    def load(self, w, x=None, rho=None, params=None, B=None) -> np.ndarray:
+    def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
         """Fluid load ``f`` (2n,) [N/m] on the nodes."""
-        B = self.load_operators(x) if B is None else B
-        fe = np.einsum("eab,eb->ea", B, w[self.flow.dofs]) * self.weight(rho, params)[:, None]
-        return assemble_vector(self.dofs, fe, self.size)
+        return self.force.load(w, x, rho, self._params(params))
 
     # ---- residual, solve and partials ----------------------------------------------
     def residual(self, u, w, x, rho, params=None) -> np.ndarray:
@@ -110,35 +115,32 @@ class Structure:
         factor = self.factorize(rho, params) if factor is None else factor
         return factor.solve(self.bc.homogenize(self.load(w, x, rho, params)))
 
-    def fluid_partial(self, x, rho, params=None) -> sp.csr_matrix:
-        """``S_w = -Psi B`` (2n x size of w)."""
-        B = self.load_operators(x) * -self.weight(rho, params)[:, None, None]
-        rows = np.broadcast_to(self.dofs[:, :, None], B.shape)
-        cols = np.broadcast_to(self.flow.dofs[:, None, :], B.shape)
-        return sp.csr_matrix((B.ravel(), (rows.ravel(), cols.ravel())), shape=(self.size, self.flow.size))
+    def check_displacement(self, u) -> None:
+        """A displacement larger than the channel is a failure, not a result (a structure that
+        is not held, or far too soft for small-strain elasticity)."""
+        largest = float(np.max(np.linalg.norm(u.reshape(-1, 2), axis=1)))
+        extent = float(np.ptp(self.mesh.points, axis=0).max())
+        if not largest <= extent:
+            raise NumericalError(f"structure: displacement {largest:.3g} m exceeds the channel ({extent:.3g} m): "
+                                 "the structure is not held by structure.clamped or is far too soft",
+                                 {"max_displacement": largest, "channel_size": extent})
 
-    def fluid_partial_transpose(self, lam, x, rho, params=None) -> np.ndarray:
+    def fluid_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
+        """``S_w = -df/dw`` (2n x size of w) at the flow state ``w``."""
+        return -self.force.fluid_partial(w, x, rho, self._params(params))
+
+    def fluid_partial_transpose(self, lam, w, x, rho, params=None) -> np.ndarray:
         """``S_w^T lam`` (size of w) without assembling ``S_w``."""
-        fe = np.einsum("eab,ea->eb", self.load_operators(x), lam[self.dofs]) * self.weight(rho, params)[:, None]
-        return -assemble_vector(self.flow.dofs, fe, self.flow.size)
+        return -self.force.fluid_partial_transpose(lam, w, x, rho, self._params(params))
 
     def shape_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
         """``S_x = -df/dx`` (2n x 2n), complex step through the load kernel."""
-        we = w[self.flow.dofs]
-        mu = self.flow.settings.viscosity
-        dfe = corner_derivatives(lambda Xc: np.einsum("eab,eb->ea", load_operator(Xc, mu), we),
-                                 self.flow.corners(x))                                 # (E, 8, 8)
-        vals = -dfe * self.weight(rho, params)[:, None, None]
-        rows = np.broadcast_to(self.dofs[:, :, None], vals.shape)
-        cols = np.broadcast_to(self.dofs[:, None, :], vals.shape)
-        return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(self.size, self.size))
+        return -self.force.shape_partial(w, x, rho, self._params(params))
 
     def density_vectors(self, u, w, x, rho, params=None) -> np.ndarray:
-        """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - Psi'(rho_e) B_e w_e``."""
+        """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e``."""
         Ku = np.einsum("eab,eb->ea", self.K0, u[self.dofs]) * self.simp(params).derivative(rho)[:, None]
-        fe = np.einsum("eab,eb->ea", self.load_operators(x), w[self.flow.dofs]) \
-            * self.weight_derivative(rho, params)[:, None]
-        return Ku - fe
+        return Ku - self.force.density_vectors(w, x, rho, self._params(params))
 
     def density_partial(self, u, w, x, rho, params=None) -> sp.csr_matrix:
         """``S_rho`` (2n x E)."""
@@ -148,7 +150,7 @@ class Structure:
                              shape=(self.size, E))
 
     def figures(self, u, w, x, rho, params=None) -> dict:
-        """Compliance ``f . u`` [J/m], drag and lift [N/m], largest displacement [m]."""
+        """Compliance ``f . u`` [J/m] and the largest displacement [m]."""
         f = self.load(w, x, rho, params)
-        return {"compliance": float(f @ u), "drag": float(f[0::2].sum()), "lift": float(f[1::2].sum()),
+        return {"compliance": float(f @ u),
                 "max_displacement": float(np.max(np.linalg.norm(u.reshape(-1, 2), axis=1)))}

@@ -1,0 +1,73 @@
+"""Docs that run: every code block of README.md and every script in examples/ (small sizes)."""
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+BLOCKS = re.findall(r"^```(\w+)\n(.*?)^```", README, re.S | re.M)
+# Small versions of the README's command lines: overrides per scene, appended to each command.
+SMALL = {"foil_in_channel": ["mesh.h_min=0.05", "mesh.h_max=0.1"],
+         "beam_in_channel": ["mesh.h_min=0.05", "mesh.h_max=0.1", "tune.layers=2", "tune.max_solves=4"],
+         "beam_in_channel_optimization": ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.15",
+                                          "optimizer.max_iter=4", "design.stage_iterations=2"]}
+EXAMPLE_ARGS = {"optimize_beam_in_channel.py": [], "optimize_fsi.py": [], "compare_movers.py": [],
+                "compare_mesh_motion.py": [],
+                "move_foil.py": ["rotation"], "mesh_motion_study.py": ["all", "--jobs", "2"],
+                "tuning_band_study.py": ["all", "--jobs", "1"]}
+
+
+def env():
+    return {**os.environ, "PYTHONPATH": str(ROOT), "TOFSI_EXAMPLE_SMALL": "1"}
+
+
+def commands(block: str) -> list[list[str]]:
+    """Shell command lines of a block (continuations joined, comments dropped)."""
+    text = block.replace("\\\n", " ")
+    return [shlex.split(line, comments=True) for line in text.splitlines() if shlex.split(line, comments=True)]
+
+
+def test_the_first_bash_block_is_the_ci_commands():
+    """.ci/run executes the first bash block: the install with the main example, then the tests.
+    They are not rerun here (the example runs below at a small size, the tests are this suite)."""
+    language, block = BLOCKS[0]
+    lines = commands(block)
+    assert language == "bash" and len(lines) == 2
+    assert "examples/optimize_beam_in_channel.py" in lines[0] and lines[1][:3] == ["python3", "-m", "pytest"]
+    assert (ROOT / "examples" / "optimize_beam_in_channel.py").is_file()
+
+
+@pytest.mark.parametrize("index", [i for i, (lang, _) in enumerate(BLOCKS) if lang == "python"])
+def test_readme_python_blocks_run(index):
+    run = subprocess.run([sys.executable, "-c", BLOCKS[index][1]], capture_output=True, text=True,
+                         cwd=ROOT, env=env())
+    assert run.returncode == 0, run.stderr
+
+
+def test_readme_command_lines_run_at_a_small_size(tmp_path):
+    (tmp_path / "examples").symlink_to(ROOT / "examples")
+    lines = [c for lang, block in BLOCKS[1:] if lang == "bash" for c in commands(block)]
+    assert lines and all(c[0] == "tofsi" for c in lines)
+    for command in lines:
+        scene = Path(command[2]).stem
+        small = [a for o in SMALL[scene] for a in ("--set", o)]
+        run = subprocess.run([sys.executable, "-m", "tofsi.cli", *command[1:], *small], capture_output=True,
+                             text=True, cwd=tmp_path, env=env())
+        assert run.returncode == 0, f"{shlex.join(command)}: {run.stderr}"
+    assert (tmp_path / "results" / "beam_solved" / "solve.json").is_file()
+
+
+@pytest.mark.parametrize("script", sorted(p.name for p in (ROOT / "examples").glob("*.py")))
+def test_every_example_runs_at_a_small_size(script, tmp_path):
+    assert script in EXAMPLE_ARGS, f"add {script}'s arguments to EXAMPLE_ARGS"
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, str(ROOT / "examples" / script), *EXAMPLE_ARGS[script],
+                          "--output", str(out)], capture_output=True, text=True, cwd=tmp_path, env=env())
+    assert run.returncode == 0, run.stderr
+    assert out.is_dir() and any(out.rglob("*.*"))

@@ -1,0 +1,34 @@
+"""Linear solvers: sparse direct backends with reused analysis, AMG, and recycling.
+
+* :class:`DirectSolver` -- sparse LU on a backend chosen by name
+  (:mod:`tofsi.linalg.backends`: ``superlu`` always, ``pardiso`` and ``petsc``
+  when installed, ``auto`` the fastest), the pattern analysed once;
+* :class:`AMGSolver` -- smoothed-aggregation AMG with CG for SPD systems;
+* :class:`RecyclingSolver` -- a sequence of slowly changing systems, solved by
+  GMRES preconditioned with an earlier factorization;
+* :func:`nested_dissection` -- the grid ordering that keeps LU fill low.
+"""
+
+from __future__ import annotations
+
+from tofsi.linalg.amg import AMGSolver, rigid_body_modes
+from tofsi.linalg.backends import available, get_backend, set_default
+from tofsi.linalg.direct import DirectSolver
+from tofsi.linalg.ordering import nested_dissection
+from tofsi.linalg.recycling import RecyclingSolver
+
+__all__ = ["AMGSolver", "DirectSolver", "RecyclingSolver", "available", "get_backend", "make_solver",
+           "nested_dissection", "rigid_body_modes", "set_default"]
+
+
+def make_solver(A, kind: str = "direct", coords=None, near_null=None, tol=1e-10,
+                perm=None, symmetric: bool = True, backend: str | None = None):
+    """A reusable solver of kind ``direct`` (LU on ``backend``) or ``amg`` (SPD systems only).
+
+    perm : a precomputed fill-reducing permutation (else computed from ``coords``)
+    """
+    if kind == "direct":
+        return DirectSolver(A, coords=coords, perm=perm, backend=backend)
+    if kind == "amg":
+        return AMGSolver(A, near_null=near_null, tol=tol, symmetric=symmetric)
+    raise ValueError(f"unknown linear solver {kind!r}")
