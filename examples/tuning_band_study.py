@@ -18,6 +18,16 @@ that page, e.g. ``docs/mesh_motion_study.md``):
     python examples/tuning_band_study.py all --jobs 2 --docs docs/mesh_motion_study.md
     python examples/tuning_band_study.py band --refine 2.2 3.8
 
+or the band study split into runs side by side, then its tables from their CSV files:
+
+    python examples/tuning_band_study.py band --refine 2.2 3.8 6.9
+    python examples/tuning_band_study.py band --refine 12 --no-problems --movers spring --output results/b1
+    python examples/tuning_band_study.py band --refine 12 --no-problems --movers linear yeoh --output results/b2
+    python examples/tuning_band_study.py tables --merge results/b1 results/b2 --docs docs/mesh_motion_study.md
+
+Times are the CPU time of the process (wall time beside it): on a shared machine
+it is the fair measure of the work.
+
 ``TOFSI_EXAMPLE_SMALL=1`` runs both on coarse meshes, one problem and the smallest grid
 (seconds; the test suite does this).
 
@@ -176,7 +186,7 @@ BANDS = {"full": [], "auto": ["mover.band.mode=auto"],
          "auto x5": ["mover.band.mode=auto", "mover.band.motion_multiple=5"]}
 
 
-def band_study(output: Path, refine: list[float], problems: bool = True) -> str:
+def band_study(output: Path, refine: list[float], problems: bool = True, movers=MOVERS) -> str:
     """The four problems first (unless ``problems`` is False), then the benchmark sizes from
     small to large; ``band.csv`` is rewritten after every row, so a stopped run keeps what it
     measured."""
@@ -186,7 +196,7 @@ def band_study(output: Path, refine: list[float], problems: bool = True) -> str:
         rows.append(row)
         write_csv(output / "band.csv", rows)
         print(" ".join(f"{k}={_fmt(v, 4)}" for k, v in row.items()), flush=True)
-    for mover in MOVERS if problems else ():
+    for mover in movers if problems else ():
         for problem in PROBLEMS:
             base = mover_overrides(mover)
             setup = motion_setup(scene(problem, *base))
@@ -194,7 +204,7 @@ def band_study(output: Path, refine: list[float], problems: bool = True) -> str:
                 add({"case": problem, "refine": 1.0, "nodes": setup.mesh.n_nodes, "mover": mover, "band": name,
                      **timed_move(scene(problem, *base, *extra), setup)})
     for r in refine:
-        for mover in MOVERS:
+        for mover in movers:
             setup = motion_setup(tofsi.load_scene(SCENES / "foil_in_channel.toml", benchmark_overrides(r, mover)))
             for name, extra in BANDS.items():
                 sc = tofsi.load_scene(SCENES / "foil_in_channel.toml", benchmark_overrides(r, mover) + extra)
@@ -250,10 +260,14 @@ def main() -> None:
     parser.add_argument("--refine", type=float, nargs="*", default=REFINE,
                         help="band: the benchmark's mesh refinements (none: skip the benchmark)")
     parser.add_argument("--no-problems", action="store_true", help="band: only the benchmark meshes")
+    parser.add_argument("--movers", nargs="+", choices=MOVERS, default=MOVERS, help="band: these movers only")
     parser.add_argument("--grid", type=Path, default=Path("results/mesh_motion_study/graded"),
                         help="folder of an earlier two-layer grid search (mesh_motion_study.py)")
     parser.add_argument("--output", type=Path, default=Path("results/tuning_band_study"))
     parser.add_argument("--docs", type=Path, help="page whose marked section gets the tables")
+    parser.add_argument("--merge", type=Path, nargs="*", default=[],
+                        help="tables: also the band.csv of these folders (a band study split into "
+                             "runs by --movers / --refine / --no-problems)")
     args = parser.parse_args()
     parts = {}
     previous = args.output / "tables.md"
@@ -266,13 +280,19 @@ def main() -> None:
     if args.study in ("tuning", "all"):
         parts["tuning"] = tuning_study(args.output, args.grid, args.jobs)
     if args.study in ("band", "all"):
-        parts["band"] = band_study(args.output, args.refine, problems=not args.no_problems)
+        parts["band"] = band_study(args.output, args.refine, problems=not args.no_problems,
+                                   movers=args.movers)
     if args.study == "tables":
         if (args.output / "tuning.csv").is_file():
             parts["tuning"] = tuning_table(read_csv(args.output / "tuning.csv"),
                                            Study(args.output, "graded", args.jobs), args.grid)
-        if (args.output / "band.csv").is_file():
-            parts["band"] = band_tables(read_csv(args.output / "band.csv"))
+        band_rows = [row for folder in (args.output, *args.merge) if (folder / "band.csv").is_file()
+                     for row in read_csv(folder / "band.csv")]
+        if band_rows:
+            order = {name: k for k, name in enumerate([*PROBLEMS, *MOVERS, *BANDS])}
+            band_rows.sort(key=lambda r: (r["case"] != "rotation 8 deg", r["refine"], order[r["mover"]],
+                                          order.get(r["case"], -1), order[r["band"]]))
+            parts["band"] = band_tables(band_rows)
     section = "".join(f"<!-- {key} -->\n{parts[key].strip()}\n<!-- {key} -->\n" for key in ("tuning", "band")
                       if key in parts)
     write_text(previous, section)
