@@ -33,6 +33,34 @@ def test_a_few_iterations_decrease_the_objective_and_keep_the_volume(tmp_path):
         {p.name for p in (tmp_path / "out").iterdir()}
 
 
+@pytest.mark.parametrize("scene, constraint", [("beam_in_channel_optimization", "solid"),
+                                               ("double_pipe", "fluid")])
+def test_a_design_past_the_volume_bound_is_shifted_onto_it_without_a_solve(scene, constraint):
+    problem = tofsi.Problem(tofsi.load_scene(scene_path(scene), ["mesh.h_min=0.1", "mesh.h_max=0.1"]
+                                             if scene != "double_pipe" else []))
+    problem.set_stage(beta=8.0)
+    bound = problem.scene.design.volume_fraction
+    rng = np.random.default_rng(3)
+    over = np.clip((0.55 if constraint == "solid" else 0.3) + 0.2 * rng.uniform(-1, 1, problem.n_design), 0, 1)
+    assert problem.phase_fraction(over) > 1.1 * bound
+    shifted = problem.feasible(over)
+    # the bound less the 0.1 % margin, to the bisection's resolution
+    assert problem.phase_fraction(shifted) == pytest.approx(bound * (1 - 1e-3), rel=1e-9)
+    delta = over - shifted                                     # one uniform shift, clipped at 0 and 1
+    moved = (shifted > 0) & (shifted < 1)
+    assert np.ptp(delta[moved]) < 1e-12 and np.sign(delta[moved][0]) == (1 if constraint == "solid" else -1)
+    assert problem.evaluations == 0                            # no flow or structure solve
+    inside = problem.feasible(shifted)
+    assert np.array_equal(inside, shifted)                     # a feasible design is kept
+
+
+def test_every_stage_starts_within_the_volume_bound(tmp_path):
+    # without the shift this schedule's last stage starts at g = +0.024
+    opt, _ = run(tmp_path / "out", scene_overrides=TINY + ["design.stage_iterations=8", "optimizer.max_iter=40"])
+    starts = [h for k, h in enumerate(opt.history) if k == 0 or h.stage != opt.history[k - 1].stage]
+    assert len(starts) == 5 and all(h.constraint <= 0 for h in starts)
+
+
 def test_resume_after_an_interruption_reproduces_the_history_exactly(tmp_path):
     full, _ = run(tmp_path / "full")
 

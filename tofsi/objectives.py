@@ -3,7 +3,7 @@
 Each quantity ``q(u, x, w, rho)`` gives its value and its partials keyed by
 field name, ``{"u": dq/du, "x": dq/dx, "w": dq/dw, "rho": dq/drho}`` (missing
 keys are zero), for the adjoint. Shape partials are analytic
-(:mod:`tofsi.physics.fluid_shape`), the pressure drop's by the complex step.
+(:mod:`tofsi.physics.fluid_shape`), the strain-rate dissipation's by the complex step.
 Continuation parameters (the Brinkman q, the load exponent) are the state's
 (``state.params``).
 
@@ -15,7 +15,9 @@ Continuation parameters (the Brinkman q, the load exponent) are the state's
   divergence-free velocity that vanishes on the whole boundary
   ``int grad v : grad v = 2 int eps:eps``, so the functional is half the
   dissipated power; with inflow and outflow the two differ by boundary terms;
-* ``pressure-drop``: mean inlet minus mean outlet pressure [Pa];
+* ``dissipation-strain``: ``1/2 int (2 mu eps(v) : eps(v) + alpha(rho) |v|^2)`` [W/m]
+  (topFlow's objective, the strain-rate form);
+* ``pressure-drop``: mean inflow minus mean outflow pressure over the openings [Pa];
 * ``volume``: solid fraction of the design region (by reference area), for
   the constraint ``volume / volume_fraction - 1 <= 0``.
 """
@@ -25,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofsi.fem.assembly import assemble_vector, element_dofs
-from tofsi.fem.complex_step import COMPLEX_STEP
+from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.geometry import physical_gradients
 from tofsi.physics.fluid_kernel import N2, POINTS, WEIGHTS
 from tofsi.physics.fluid_shape import dissipation_shape
@@ -96,43 +98,70 @@ class Dissipation:
         return out
 
 
+class StrainDissipation:
+    """``1/2 int (2 mu eps(v) : eps(v) + alpha(rho) |v|^2)`` [W/m], ``eps = (grad v + grad v^T)/2``:
+    half the power dissipated by the strain-rate (symmetric) viscous form -- topFlow's
+    objective ``phi = 1/2 int mu d_j v_i (d_j v_i + d_i v_j) + alpha v_i v_i``
+    (Alexandersen 2023). It equals ``dissipation`` plus ``1/2 int mu grad v : grad v^T``,
+    a boundary term for divergence-free flow."""
+
+    name, needs = "dissipation-strain", "fluid"
+
+    @staticmethod
+    def element_values(flow, Xe, w, rho, params=None) -> np.ndarray:
+        ve, _ = flow.split(w)
+        grad, det = physical_gradients(Xe, 2, POINTS)
+        L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)               # (E, G, 2, 2)
+        v = np.matmul(N2, ve)
+        strain = np.sum(L * (L + np.swapaxes(L, -1, -2)), axis=(-1, -2))   # 2 eps : eps
+        return 0.5 * np.sum(det * WEIGHTS * (flow.settings.viscosity * strain
+                                             + flow.alpha(rho, params)[:, None] * np.sum(v * v, axis=-1)), axis=1)
+
+    def value(self, model, state) -> float:
+        flow = model.flow
+        return float(self.element_values(flow, flow.corners(state.mesh_displacement), state.w, state.rho,
+                                         state.params).sum())
+
+    def partials(self, model, state) -> dict:
+        """``w``: ``int mu (grad v + grad v^T) : grad N_a + alpha v N_a`` per velocity dof; ``x`` by
+        the complex step through :meth:`element_values`."""
+        flow, X, rho, params = model.flow, state.mesh_displacement, state.rho, state.params
+        Xe = flow.corners(X)
+        ve, _ = flow.split(state.w)
+        grad, det = physical_gradients(Xe, 2, POINTS)                       # (E, G, 9, 2)
+        wd = det * WEIGHTS
+        L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)
+        v = np.matmul(N2, ve)
+        S = flow.settings.viscosity * (L + np.swapaxes(L, -1, -2))          # (E, G, 2, 2)
+        gv = np.einsum("eg,egij,egaj->eai", wd, S, grad)
+        gv += flow.alpha(rho, params)[:, None, None] * np.einsum("eg,ga,egi->eai", wd, N2, v)
+        ge = np.zeros((Xe.shape[0], 22))
+        ge[:, :18] = gv.reshape(-1, 18)
+        out = {"w": assemble_vector(flow.dofs, ge, flow.size),
+               "rho": 0.5 * flow.brinkman(params).derivative(rho) * np.sum(wd * np.sum(v * v, axis=-1), axis=1)}
+        if state.x is not None:                       # the flow saw the moved mesh
+            dphi = corner_derivatives(lambda Xc: self.element_values(flow, Xc, state.w, rho, params), Xe)
+            out["x"] = assemble_vector(element_dofs(model.mesh.quads, 2), dphi, 2 * model.mesh.n_nodes)
+        return out
+
+
 class PressureDrop:
-    """Mean inlet pressure minus mean outlet pressure [Pa]."""
+    """Mean pressure over the inflow segments minus the mean over the outflow and open
+    segments [Pa] (see :mod:`tofsi.physics.flow_boundary`), on any sides. Linear in the
+    corner pressures; the channel boundary never moves (the movers fix it), so there is no
+    shape partial."""
 
     name, needs = "pressure-drop", "fluid"
 
-    @staticmethod
-    def _weights(flow, P) -> np.ndarray:
-        """``dp_drop/dp`` on the corner pressures: trapezoid weights / side length."""
-        out = np.zeros(P.shape[0], dtype=P.dtype)
-        for side, sign in ((flow.inlet, 1.0), (flow.outlet, -1.0)):
-            nodes = flow.mesh.side_nodes(side)
-            s = P[nodes, 1]
-            ds = np.diff(s)
-            wts = np.zeros(len(nodes), dtype=P.dtype)
-            wts[:-1] += 0.5 * ds
-            wts[1:] += 0.5 * ds
-            out[nodes] += sign * wts / (s[-1] - s[0])
-        return out
-
     def value(self, model, state) -> float:
-        return float(model.flow.figures(state.w, state.mesh_displacement, state.rho, state.params)["pressure_drop"])
+        flow = model.flow
+        return float(flow.boundary.pressure_drop_weights() @ state.w[flow.n_velocity:])
 
     def partials(self, model, state) -> dict:
         flow = model.flow
-        P = flow.mesh.points if state.x is None else flow.mesh.points + state.mesh_displacement
         g = np.zeros(flow.size)
-        g[flow.n_velocity:] = self._weights(flow, P)
-        out = {"w": g}
-        if state.x is not None:                       # the flow saw the moved mesh
-            p = state.w[flow.n_velocity:]
-            gx = np.zeros_like(P)
-            for k in np.union1d(flow.mesh.side_nodes(flow.inlet), flow.mesh.side_nodes(flow.outlet)):
-                Pc = P.astype(complex)
-                Pc[k, 1] += 1j * COMPLEX_STEP
-                gx[k, 1] = (self._weights(flow, Pc) @ p).imag / COMPLEX_STEP
-            out["x"] = gx.ravel()
-        return out
+        g[flow.n_velocity:] = flow.boundary.pressure_drop_weights()
+        return {"w": g}
 
 
 class VolumeFraction:
@@ -152,4 +181,5 @@ class VolumeFraction:
         return {"rho": self.weights.copy()}
 
 
-OBJECTIVES = {"compliance": Compliance, "dissipation": Dissipation, "pressure-drop": PressureDrop}
+OBJECTIVES = {"compliance": Compliance, "dissipation": Dissipation, "pressure-drop": PressureDrop,
+              "dissipation-strain": StrainDissipation}

@@ -213,6 +213,8 @@ class Optimizer:
                 break
             params = continuation(self.scene, stage)
             p.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q, coupling=params.coupling)
+            if not (resume and stage == first_stage):
+                gamma = p.feasible(gamma)          # each stage starts within the volume bound
             self._stage_start = gamma.copy()
             self._stage_log, self._last = [], None
             if not (resume and stage == first_stage):

@@ -88,6 +88,33 @@ class Problem:
     def densities(self, gamma) -> np.ndarray:
         return self.map.forward(np.asarray(gamma, dtype=float))
 
+    def phase_fraction(self, gamma) -> float:
+        """The constrained phase's fraction of the design region (solid, or fluid with
+        ``design.constraint = "fluid"``) at the current projection; no solve."""
+        solid = float(self.volume_fraction.weights @ self.densities(gamma))
+        return solid if self.scene.design.constraint == "solid" else 1.0 - solid
+
+    def feasible(self, gamma, margin: float = 1e-3) -> np.ndarray:
+        """``gamma`` if it meets the phase-fraction bound, else ``clip(gamma - s delta, 0, 1)``
+        with the smallest shift ``delta`` (bisection, 50 steps) that brings the fraction to
+        ``(1 - margin)`` of the bound (``s = +1`` for a solid bound, ``-1`` for a fluid one).
+
+        A sharper projection (a new beta) can move a feasible design past the bound; NLopt's
+        MMA and CCSAQ then raise the constraint's multiplier to regain feasibility and keep it
+        high, descending the constraint uphill in the objective for a whole stage (measured on
+        the two-way scene's beta-8 stage: compliance 0.60 -> 7.0 in 15 iterations; 0.60 -> 0.48
+        from the shifted start). The shift is a filtering and a projection, no solve."""
+        gamma = np.asarray(gamma, dtype=float)
+        bound = self.scene.design.volume_fraction * (1.0 - margin)
+        if self.phase_fraction(gamma) <= self.scene.design.volume_fraction:
+            return gamma
+        sign = 1.0 if self.scene.design.constraint == "solid" else -1.0
+        lo, hi = 0.0, 1.0
+        for _ in range(50):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if self.phase_fraction(np.clip(gamma - sign * mid, 0.0, 1.0)) > bound else (lo, mid)
+        return np.clip(gamma - sign * hi, 0.0, 1.0)
+
     def solve(self, gamma) -> State:
         """The coupled state of design ``gamma`` (cached)."""
         return self._entry(gamma)["state"]

@@ -14,21 +14,58 @@ from tofsi.mesh import SIDES
 
 
 @dataclass(frozen=True)
+class SideFlow:
+    """Openings in one side of the channel (table ``[fluid.<side>]``); the rest of the side is a
+    no-slip wall. Positions run along the side: y on the left and right sides, x on the bottom
+    and top. Listing any opening in any side replaces the default channel (inflow over the
+    whole left side, open right side): every side is then a wall except what is listed."""
+
+    inflow: tuple[tuple[float, ...], ...] = option((), length=3,
+                                                   doc="prescribed inflow segments [from, to, peak]: "
+                                                       "parabolic velocity into the channel [m, m, m/s]")
+    outflow: tuple[tuple[float, ...], ...] = option((), length=3,
+                                                    doc="prescribed outflow segments [from, to, peak]: "
+                                                        "parabolic velocity out of the channel [m, m, m/s]")
+    open: tuple[tuple[float, ...], ...] = option((), length=2,
+                                                 doc="open outlet segments [from, to] [m] with the natural "
+                                                     "condition of fluid.outlet")
+
+    def __post_init__(self):
+        for name in ("inflow", "outflow", "open"):
+            for i, segment in enumerate(getattr(self, name)):
+                if not segment[0] < segment[1]:
+                    raise InputError(f"{name}[{i}]", list(segment[:2]), "need from < to")
+
+    @property
+    def is_empty(self) -> bool:
+        return not (self.inflow or self.outflow or self.open)
+
+
+@dataclass(frozen=True)
 class FluidSettings:
     """Steady incompressible flow with Brinkman friction (table ``[fluid]``)."""
 
     density: float = option(1.0, ge=0, doc="fluid density [kg/m^3]; 0 gives Stokes flow")
     viscosity: float = option(1.0, gt=0, doc="dynamic viscosity [Pa s]")
-    inlet_velocity: float = option(1.0, doc="peak of the parabolic inlet profile [m/s]")
+    inlet_velocity: float = option(1.0, doc="peak of the parabolic inflow over the whole left side "
+                                                 "(the default channel) [m/s]")
     inlets: tuple[tuple[float, ...], ...] = option((), length=3,
                                                    doc="inflow segments [y0, y1, peak velocity] on "
-                                                       "the left side; empty: the whole side")
+                                                       "the left side; empty: the whole side (unless "
+                                                       "a fluid.<side> table lists openings)")
     outlets: tuple[tuple[float, ...], ...] = option((), length=3,
                                                     doc="prescribed outflow segments [y0, y1, peak] on "
-                                                        "the right side; empty: natural outlet")
+                                                        "the right side; empty: the side open (unless "
+                                                        "a fluid.<side> table lists openings)")
     outlet: str = option("zero-pressure", choices=("zero-pressure", "traction-free"),
                          doc="outlet condition: mu dv/dn - p n = 0 (zero pressure for "
                              "developed flow) or (-p I + 2 mu eps(v)) n = 0")
+    parallel_outflow: bool = option(False, doc="open outlets: tangential velocity 0, the flow leaves "
+                                               "along the normal (as topFlow's outlets)")
+    left: SideFlow = option(SideFlow(), doc="openings in the left side")
+    right: SideFlow = option(SideFlow(), doc="openings in the right side")
+    bottom: SideFlow = option(SideFlow(), doc="openings in the bottom side")
+    top: SideFlow = option(SideFlow(), doc="openings in the top side")
     alpha_max: float = option(1e5, gt=0, doc="Brinkman friction of solid [kg/(m^3 s)]")
     alpha_min: float = option(0.0, ge=0, doc="Brinkman friction of fluid [kg/(m^3 s)]")
     newton_tol: float = option(1e-10, gt=0, lt=1, doc="Newton tolerance on the residual, "
@@ -102,7 +139,8 @@ class DesignSettings:
                                 "f.u of the fluid load [J/m]; dissipation, Borrvall-Petersson's "
                                 "1/2 int (mu grad v:grad v + alpha |v|^2) [W/m], half the "
                                 "dissipated_power figure when v = 0 on the whole boundary; "
-                                "pressure-drop, mean inlet minus outlet pressure [Pa]")
+                                "dissipation-strain, topFlow's 1/2 int (2 mu eps:eps + alpha |v|^2) [W/m]; "
+                                "pressure-drop, mean inflow minus outflow pressure over the openings [Pa]")
     volume_fraction: float = option(0.25, gt=0, lt=1,
                                     doc="upper bound of the constrained phase's fraction of the "
                                         "design region")

@@ -3,11 +3,13 @@
 ``w = (v, p)``: velocity on the Q2 nodes (dofs ``2 k + i``), then pressure on
 the Q1 corners (dofs ``2 n9 + k``). The mesh is the reference mesh moved by
 ``x`` (n, 2) -- the ALE configuration -- and Brinkman friction
-``alpha(rho_e)`` acts per element. Boundary conditions: parabolic inflow
-``v_x = 4 U y (H - y) / H^2`` on the left, no slip on the top and bottom
-walls, the natural condition on the right (``zero-pressure``: the
-do-nothing condition of the gradient form, ``traction-free``: ``sigma n = 0``).
-With no open boundary the pressure is pinned at one corner.
+``alpha(rho_e)`` acts per element. Boundary conditions come from
+:mod:`tofsi.physics.flow_boundary` (walls, parabolic inflow and outflow, open
+outlets on any side; by default inflow on the left and an open right side),
+where open segments take the natural condition of the viscous form
+(``zero-pressure``: the do-nothing condition of the gradient form,
+``traction-free``: ``sigma n = 0``). With no open boundary the pressure is
+pinned at one corner.
 
 Steady Navier-Stokes is solved by Newton's method with a backtracking line
 search on ``|R|``; when it fails, by continuation in the fluid density
@@ -28,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from tofsi.blocks import Continuation
-from tofsi.errors import InputError, NumericalError
+from tofsi.errors import NumericalError
 from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.dirichlet import DirichletOperator
@@ -36,6 +38,7 @@ from tofsi.fem.geometry import map_points, physical_gradients
 from tofsi.interpolation import Brinkman
 from tofsi.iteration import backtracking, forcing_term
 from tofsi.linalg import DirectSolver, RecyclingSolver, nested_dissection
+from tofsi.physics.flow_boundary import FlowBoundary
 from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_element,
                                         velocity_fields)
 from tofsi.physics.fluid_shape import fluid_shape
@@ -81,49 +84,22 @@ class Flow:
                  body_force=None):
         self.mesh, self.settings = mesh, settings
         self.body_force = body_force
-        if boundary_velocity is None:
-            walls, inlet, outlet = ("bottom", "top"), "left", "right"
-        else:
-            walls, inlet, outlet = ("left", "right", "bottom", "top"), None, None
         self.density = 0.0 if stokes else settings.density
         self.symmetric = settings.outlet == "traction-free"
         n9, n = mesh.n_nodes9, mesh.n_nodes
         self.n_velocity, self.size = 2 * n9, 2 * n9 + n
         self.dofs = np.hstack([element_dofs(mesh.quads9, 2), 2 * n9 + mesh.quads])   # (E, 22)
+        self.boundary = (FlowBoundary.for_channel(mesh, settings) if boundary_velocity is None
+                         else FlowBoundary.prescribed(mesh, boundary_velocity))
+        self.open_outlet = self.boundary.is_open
+        fixed = [self.boundary.fixed] + ([] if self.open_outlet else [np.array([2 * n9])])  # closed: pin p
         self.values = np.zeros(self.size)
-        fixed = []
-        for side in walls:
-            nodes = mesh.side_nodes9(side)
-            fixed.append(element_dofs(nodes[:, None], 2).ravel())
-            if boundary_velocity is not None:
-                self.values[element_dofs(nodes[:, None], 2)] = boundary_velocity(mesh.points9()[nodes])
-        if inlet:
-            segments = settings.inlets or ((mesh.ys[0], mesh.ys[-1], settings.inlet_velocity),)
-            self._prescribe(inlet, segments, fixed)
-        if settings.outlets and outlet:
-            self._prescribe(outlet, settings.outlets, fixed)
-            outlet = None
-        if not outlet:                                 # closed box: fix the pressure level
-            fixed.append(np.array([2 * n9]))
-        self.inlet = inlet
-        self.outlet = outlet if outlet else ("right" if settings.outlets and boundary_velocity is None else None)
+        self.values[:2 * n9] = self.boundary.values
         self.bc = DirichletOperator(self.dofs, self.dofs, self.size, np.concatenate(fixed))
-        self.values[~self.bc.is_fixed] = 0.0
-        if inlet and np.abs(self.values).max() == 0.0:
-            raise InputError("fluid.inlets", list(settings.inlets), "no inflow: every segment is empty")
         self._perm = None
         self._shape_kept = None           # (key, (R_e, dR_e/dXe)) of the last shape evaluation
+        self._elements_kept = None        # (key, (R_e, K_e)) of the last Jacobian evaluation
         self._shape_pattern = None        # CSR pattern of F_x
-
-    def _prescribe(self, side: str, segments, fixed: list) -> None:
-        """Parabolic normal velocity ``4 U (y - y0)(y1 - y) / (y1 - y0)^2`` on segments of a side
-        (no slip on the rest of it)."""
-        nodes = self.mesh.side_nodes9(side)
-        y = self.mesh.points9()[nodes, 1]
-        for y0, y1, peak in segments:
-            inside = (y > y0) & (y < y1)
-            self.values[2 * nodes[inside]] = 4.0 * peak * (y[inside] - y0) * (y1 - y[inside]) / (y1 - y0) ** 2
-        fixed.append(element_dofs(nodes[:, None], 2).ravel())
 
     # ---- geometry and state -------------------------------------------------------
     def corners(self, x=None) -> np.ndarray:
@@ -169,10 +145,24 @@ class Flow:
         Re, _ = self.element_residual(w, x, rho, jacobian=False, density=density, params=params)
         return assemble_vector(self.dofs, Re, self.size)
 
+    def element_jacobians(self, w, x=None, rho=None, params=None):
+        """``(R_e (E, 22), K_e (E, 22, 22))`` on the mesh moved by ``x``. The last evaluation is
+        kept, keyed by every input: the fluid load's ``S_w`` at a converged state reuses the
+        Jacobian of the Newton solve's last residual check."""
+        rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(),
+               params, self.density, self.symmetric, self.settings, self.body_force)
+        if self._elements_kept is None or self._elements_kept[0] != key:
+            self._elements_kept = (key, self.element_residual(w, x, rho, params=params))
+        return self._elements_kept[1]
+
     def jacobian(self, w, x=None, rho=None, density=None, params=None):
         """``F_w`` as the constrained CSR matrix (identity on fixed dofs), ``F`` and the
         element Jacobians."""
-        Re, Ke = self.element_residual(w, x, rho, density=density, params=params)
+        if density is None:
+            Re, Ke = self.element_jacobians(w, x, rho, params)
+        else:
+            Re, Ke = self.element_residual(w, x, rho, density=density, params=params)
         return self.bc.matrix(Ke), assemble_vector(self.dofs, Re, self.size), Ke
 
     def shape_elements(self, w, x=None, rho=None, params=None):
@@ -330,14 +320,6 @@ class Flow:
                              {"history": history, "density": density})
 
     # ---- figures -------------------------------------------------------------------
-    def side_mean_pressure(self, w, side: str, x=None) -> float:
-        """Length-weighted mean pressure along a channel side [Pa]."""
-        nodes = self.mesh.side_nodes(side)
-        P = self.mesh.points if x is None else self.mesh.points + x
-        s = P[nodes, 1] if side in ("left", "right") else P[nodes, 0]
-        p = w[self.n_velocity + nodes]
-        return float(np.sum(0.5 * (p[1:] + p[:-1]) * np.diff(s)) / (s[-1] - s[0]))
-
     def figures(self, w, x=None, rho=None, params=None) -> dict:
         """Pressure drop [Pa] and dissipated power [W/m] of a flow state.
 
@@ -353,7 +335,6 @@ class Flow:
         friction = float(np.sum(alpha[:, None] * np.einsum("egi,egi->eg", v, v) * wdet))
         out = {"dissipated_power": viscous + friction, "viscous_dissipation": viscous,
                "brinkman_dissipation": friction}
-        if self.inlet and self.outlet:
-            out["pressure_drop"] = (self.side_mean_pressure(w, self.inlet, x)
-                                    - self.side_mean_pressure(w, self.outlet, x))
+        if self.boundary.has_pressure_drop:
+            out["pressure_drop"] = float(self.boundary.pressure_drop_weights() @ w[self.n_velocity:])
         return out

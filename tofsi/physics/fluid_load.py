@@ -132,15 +132,18 @@ class FluidForce:
             self._operators = (key, load_operator(self.flow.corners(x), self.flow.settings.viscosity))
         return self._operators[1]
 
-    def _reaction(self, w, rho, params, Xe, partials: bool):
-        """Element loads ``(E, 8)`` of the reaction form on corners ``Xe`` (complex-safe), and with
-        ``partials`` ``df/dw_e (E, 8, 22)`` and ``df/drho_e (E, 8)``."""
+    def _reaction(self, w, x, rho, params, Xe, partials: bool):
+        """Element loads ``(E, 8)`` of the reaction form on the mesh moved by ``x`` (or on corners
+        ``Xe``, complex-safe), and with ``partials`` ``df/dw_e (E, 8, 22)`` and ``df/drho_e (E, 8)``."""
         fl = self.flow
         E = Xe.shape[0]
         brinkman = fl.brinkman(params)
         alpha = brinkman(rho)
         psi = self.weight(rho, params)
-        Re, Ke = fl.element_residual(w, None, rho, jacobian=partials, Xe=Xe, params=params)
+        if partials:                                    # the flow's kept element Jacobians
+            Re, Ke = fl.element_jacobians(w, x, rho, params)
+        else:
+            Re, Ke = fl.element_residual(w, None, rho, jacobian=partials, Xe=Xe, params=params)
         we = w[fl.dofs]
         unit = brinkman_partial(Xe, we[:, :18].reshape(E, 9, 2))[:, :18]      # int N_b v_i (E, 18)
         stress = Re[:, :18] - alpha[:, None] * unit                            # R_e without friction
@@ -168,7 +171,7 @@ class FluidForce:
         if self._last is not None and self._last[0] == key and (self._last[1][1] is not None or not partials):
             return self._last[1]
         if self.form == "reaction":
-            values = self._reaction(w, rho, params, self.flow.corners(x), partials)
+            values = self._reaction(w, x, rho, params, self.flow.corners(x), partials)
         else:
             B = self.stress_operators(x)
             Bw = np.einsum("eab,eb->ea", B, w[self.flow.dofs])
