@@ -158,6 +158,7 @@ class MoveReport:
     factorizations: int = 0
     krylov_iterations: int = 0
     cutbacks: int = 0
+    warm_start: bool = False                                # started from a given nearby displacement
     residual_history: list = field(default_factory=list)   # per increment: list of norms
     quality: list = field(default_factory=list)            # per increment: summary dict
     wall_time_s: float = 0.0
@@ -197,11 +198,15 @@ class Mover(ABC):
     true Jacobian, the residual's partial derivatives and the
     implicit-function vector-Jacobian product. A path-dependent mover
     (increments on the updated mesh) writes :meth:`move`, :meth:`vjp` and
-    :meth:`reference_matrices` instead.
+    :meth:`reference_matrices` instead. A mover that sets ``warm_starts``
+    takes ``initial`` (a nearby displacement to start from) and ``solver`` (an
+    earlier move's solver to recycle) in :meth:`move`; its result must not
+    depend on them beyond its own tolerance.
     """
 
     name: ClassVar[str]
     Params: ClassVar[type]
+    warm_starts: ClassVar[bool] = False     # move() takes ``initial``, a nearby displacement to start from
 
     def __init__(self, params):
         self.params = params

@@ -31,7 +31,8 @@ def test_strain_dissipation_is_half_the_dissipated_power_of_the_flow_figures():
     gamma = np.random.default_rng(3).uniform(0.05, 0.95, P.n_design)
     state = P.solve(gamma)
     phi = StrainDissipation().value(P.model, state)
-    assert phi == pytest.approx(0.5 * P.model.flow.figures(state.w, None, state.rho)["dissipated_power"],
+    assert phi == pytest.approx(0.5 * P.model.flow.figures(state.w, None, state.rho,
+                                                                      state.params)["dissipated_power"],
                                 rel=1e-12)
 
 

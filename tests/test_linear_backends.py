@@ -24,7 +24,7 @@ import scipy.sparse as sp
 import tofsi
 from tofsi.coupled import CoupledModel
 from tofsi.errors import InputError
-from tofsi.linalg import DirectSolver, RecyclingSolver, backends, nested_dissection
+from tofsi.linalg import AMGSolver, DirectSolver, RecyclingSolver, backends, nested_dissection
 from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
 
@@ -251,3 +251,29 @@ def test_resume_is_bitwise_exact_with_pardiso(tmp_path):
     assert [key(h) for h in resumed.history] == [key(h) for h in full.history]
     np.testing.assert_array_equal(np.load(tmp_path / "cut" / "design.npy"),
                                   np.load(tmp_path / "full" / "design.npy"))
+
+
+def test_amg_hierarchy_preconditions_nearby_matrices_until_it_goes_stale():
+    """Slowly changing elasticity matrices: one V-cycle of an older AMG hierarchy preconditions
+    CG on each, every answer is the new matrix's (against SuperLU), one hierarchy serves the
+    nearby matrices, and a matrix far from them gets a new one."""
+    scene = tofsi.load_scene("examples/scenes/beam_in_channel_optimization.toml",
+                             ["mesh.h_min=0.04", "mesh.h_max=0.04"])
+    structure = tofsi.Problem(scene).model.structure
+    rho = np.full(structure.mesh.n_elements, 0.5)
+    nearby = [structure.stiffness(rho * (1 + 0.02 * k)) for k in range(5)]
+    far = rho.copy()
+    far[structure.mesh.centroids[:, 0] > 1.0] = 1.0                       # one half 8x stiffer (p = 3)
+    rec = RecyclingSolver(lambda A: AMGSolver(A, tol=1e-10))
+    b = np.random.default_rng(4).standard_normal(nearby[0].shape[0])
+    b[structure.bc.fixed] = 0.0
+    for K in nearby:
+        x = rec.solve(K, b)
+        assert np.linalg.norm(K @ x - b) <= 1.01e-10 * np.linalg.norm(b)
+        ref = DirectSolver(K).solve(b)
+        assert np.linalg.norm(x - ref) <= 1e-7 * np.linalg.norm(ref)
+    assert rec.factorizations == 1
+    K = structure.stiffness(far)
+    x = rec.solve(K, b)
+    assert rec.factorizations == 2
+    assert np.linalg.norm(K @ x - b) <= 1.01e-10 * np.linalg.norm(b)

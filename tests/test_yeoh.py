@@ -5,7 +5,8 @@ import pytest
 
 from movers.base import MotionProblem
 from movers.yeoh import YeohKernel, YeohMover, YeohParams
-from movers.yeoh_material import energy, stress_and_tangent
+from movers import yeoh_kernel
+from movers.yeoh_material import BLOCKS, energy, piola_and_elasticity, stress_and_tangent
 from reference_kernels import yeoh_quad
 from tofsi.errors import NumericalError
 from tofsi.mesh import StructuredQuadMesh
@@ -65,6 +66,79 @@ def test_small_strain_limit_gives_shear_2A10_and_bulk_2kappa():
     lam = K - 2 * mu / 3
     expected = np.array([[lam + 2 * mu, lam, 0], [lam, lam + 2 * mu, 0], [0, 0, mu]])
     np.testing.assert_allclose(D, expected, rtol=1e-13, atol=1e-13)
+
+
+def component_first(F):
+    """Stack (N, 2, 2) -> component-first (2, 2, N)."""
+    return np.ascontiguousarray(np.moveaxis(F, 0, -1))
+
+
+def test_pulled_back_piola_stress_is_the_energy_gradient():
+    """``Pt = w (dW/dF) B^T`` by central differences of the energy, for random F, B, w."""
+    rng = np.random.default_rng(15)
+    Fs = np.eye(2) + 0.3 * rng.normal(size=(3, 2, 2))
+    B, w = rng.normal(size=(2, 2, 3)), rng.uniform(0.5, 2.0, 3)
+    Pt, _ = piola_and_elasticity(component_first(Fs), **PARAMS, pull=B, weight=w, tangent=False)
+    h = 1e-6
+    dW = np.zeros((3, 2, 2))
+    for i in range(2):
+        for J in range(2):
+            dF = np.zeros((2, 2))
+            dF[i, J] = h
+            dW[:, i, J] = (energy(Fs + dF, **PARAMS) - energy(Fs - dF, **PARAMS)) / (2 * h)
+    expected = w * np.einsum("niJ,mJn->imn", dW, B)
+    np.testing.assert_allclose(Pt, expected, rtol=1e-6)
+
+
+def test_first_elasticity_tensor_is_the_piola_stress_derivative():
+    """``At_ikmn = w dP_iJ/dF_kL B_mJ B_nL`` by central differences of P."""
+    rng = np.random.default_rng(16)
+    F = component_first(np.eye(2) + 0.3 * rng.normal(size=(3, 2, 2)))
+    B, w = rng.normal(size=(2, 2, 3)), rng.uniform(0.5, 2.0, 3)
+    _, At = piola_and_elasticity(F, **PARAMS, pull=B, weight=w)
+    h = 1e-6
+    dP = np.zeros((2, 2, 2, 2, 3))                                   # [i, J, k, L, n]
+    for k in range(2):
+        for L in range(2):
+            dF = np.zeros((2, 2, 1))
+            dF[k, L] = h
+            plus, _ = piola_and_elasticity(F + dF, **PARAMS, tangent=False)
+            minus, _ = piola_and_elasticity(F - dF, **PARAMS, tangent=False)
+            dP[:, :, k, L] = (plus - minus) / (2 * h)
+    for b, (i, k) in enumerate(BLOCKS):
+        expected = w * np.einsum("JLn,mJn,qLn->mqn", dP[i, :, k], B, B)
+        np.testing.assert_allclose(At[b], expected, rtol=1e-6, atol=1e-8 * np.abs(expected).max())
+
+
+def test_first_elasticity_tensor_is_the_push_forward_of_the_material_tangent():
+    """A different formulation: ``A_iJkL = F_iI D_IJKL F_kK + delta_ik S_JL`` from (S, D) in Voigt form."""
+    rng = np.random.default_rng(17)
+    Fs = np.eye(2) + 0.3 * rng.normal(size=(4, 2, 2))
+    P, At = piola_and_elasticity(component_first(Fs), **PARAMS)
+    S, D = stress_and_tangent(Fs, **PARAMS)
+    v = np.array([[0, 2], [2, 1]])                                   # Voigt index of (I, J)
+    D4 = D[:, v[:, :, None, None], v[None, None, :, :]]               # (n, I, J, K, L)
+    A = np.einsum("niI,nIJKL,nkK->niJkL", Fs, D4, Fs) + np.einsum("ik,nJL->niJkL", np.eye(2), S)
+    np.testing.assert_allclose(np.moveaxis(P, -1, 0), Fs @ S, rtol=1e-12, atol=1e-12)
+    for b, (i, k) in enumerate(BLOCKS):
+        np.testing.assert_allclose(np.moveaxis(At[b], -1, 0), A[:, i, :, k], rtol=1e-12, atol=1e-11)
+
+
+@pytest.mark.parametrize("block", [2, 5, 1000])
+def test_kernel_on_element_blocks_matches_the_slow_oracle(monkeypatch, block):
+    """Whole blocks, a partial last block and one block for all: the same element values."""
+    monkeypatch.setattr(yeoh_kernel, "BLOCK", block)
+    rng = np.random.default_rng(18)
+    mesh = StructuredQuadMesh(np.array([0, 0.3, 0.5, 1.0]), np.array([0, 0.2, 0.5, 0.7, 1.0]))
+    problem = MotionProblem.from_mesh(mesh, np.arange(mesh.n_elements), np.array([0]),
+                                      stiffening=rng.uniform(1, 3, mesh.n_elements))
+    p = YeohParams(**PARAMS)
+    x = 0.05 * rng.normal(size=2 * mesh.n_nodes)
+    Re, Ke, _ = YeohKernel(problem, p).evaluate(x)
+    for e, q in enumerate(problem.quads):
+        R, K = yeoh_quad(mesh.points[q], x.reshape(-1, 2)[q], p.A10, p.A20 * problem.stiffening[e], p.A30, p.kappa)
+        np.testing.assert_allclose(Re[e], R, rtol=1e-12, atol=1e-13)
+        np.testing.assert_allclose(Ke[e], K, rtol=1e-12, atol=1e-12)
 
 
 def test_vectorized_kernel_matches_the_slow_oracle():

@@ -5,7 +5,7 @@
   when installed, ``auto`` the fastest), the pattern analysed once;
 * :class:`AMGSolver` -- smoothed-aggregation AMG with CG for SPD systems;
 * :class:`RecyclingSolver` -- a sequence of slowly changing systems, solved by
-  GMRES preconditioned with an earlier factorization;
+  Krylov iterations preconditioned with an earlier factorization or AMG hierarchy;
 * :func:`nested_dissection` -- the grid ordering that keeps LU fill low.
 """
 

@@ -29,18 +29,20 @@ class AMGSolver:
 
     near_null : near-null-space vectors (rigid-body modes for elasticity). The
     coarsest level is solved by sparse LU (pyamg's default pseudo-inverse is
-    a dense SVD, seconds for a thousand unknowns). Setting up a hierarchy is
-    cheap, so a :class:`RecyclingSolver` builds a new one for every matrix
-    (``recycle = False``) instead of preconditioning GMRES with an old one.
+    a dense SVD, seconds for a thousand unknowns). A :class:`RecyclingSolver`
+    keeps a hierarchy for a sequence of nearby matrices, one V-cycle of it
+    preconditioning each (:meth:`preconditioner`), until it goes stale.
     """
 
-    recycle = False
+    exact = False
+    setup_iterations = 12      # a hierarchy costs about 12 preconditioned CG iterations to build
 
     def __init__(self, A: sp.spmatrix, near_null: np.ndarray | None = None, tol: float = 1e-10,
                  max_iter: int = 500, symmetric: bool = True):
         self.A = sp.csr_matrix(A)
         self.tol, self.max_iter = tol, max_iter
         self.accel = "cg" if symmetric else "gmres"
+        self.symmetric = symmetric
         self._ml = pyamg.smoothed_aggregation_solver(
             self.A, B=near_null, symmetry="symmetric" if symmetric else "nonsymmetric",
             max_coarse=300, coarse_solver="splu")
@@ -55,6 +57,14 @@ class AMGSolver:
             raise NumericalError(f"AMG-{self.accel.upper()} did not converge",
                                  {"residual_history": residuals[-20:], "size": self.shape[0]})
         return x
+
+    def preconditioner(self, transpose: bool = False):
+        """One V-cycle ``b -> M b`` of this hierarchy, for preconditioning a nearby matrix
+        (None for the transpose of a nonsymmetric matrix: the cycle is not transposed)."""
+        if transpose and not self.symmetric:
+            return None
+        cycle = self._ml.aspreconditioner(cycle="V")
+        return cycle.matvec
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
         if self.accel != "cg":

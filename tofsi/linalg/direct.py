@@ -37,6 +37,7 @@ class DirectSolver:
     """
 
     refine_tol = 1e-12
+    exact = True               # a RecyclingSolver preconditions GMRES with these factors
 
     def __init__(self, A: sp.spmatrix, coords: np.ndarray | None = None, perm: np.ndarray | None = None,
                  backend: str | None = None):
@@ -56,13 +57,13 @@ class DirectSolver:
         self.shape = A.shape
         self.dtype = A.dtype
 
-    def _apply(self, b: np.ndarray, trans: str) -> np.ndarray:
+    def _apply(self, b: np.ndarray, trans: str, rtol: float | None = None) -> np.ndarray:
         A = self.A if trans == "N" else self.A.T
         x = self.factorization.solve(b, trans)
-        bnorm = np.linalg.norm(b)
+        goal = max(self.refine_tol, rtol or 0.0) * np.linalg.norm(b)
         for _ in range(2):                               # iterative refinement
             r = b - A @ x
-            if not np.all(np.isfinite(x)) or np.linalg.norm(r) <= self.refine_tol * bnorm:
+            if not np.all(np.isfinite(x)) or np.linalg.norm(r) <= goal:
                 break
             x = x + self.factorization.solve(r, trans)
         if not np.all(np.isfinite(x)):
@@ -70,8 +71,15 @@ class DirectSolver:
                                  {"size": self.shape[0], "backend": self.backend.name})
         return x
 
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        return self._apply(b, "N")
+    def solve(self, b: np.ndarray, rtol: float | None = None) -> np.ndarray:
+        """``A^-1 b``, refined until the residual is below ``max(refine_tol, rtol) |b|``."""
+        return self._apply(b, "N", rtol)
+
+    def preconditioner(self, transpose: bool = False):
+        """``b -> A^-1 b`` (or ``A^-T b``) by the triangular solves alone: a fixed linear
+        operator for preconditioning another matrix (no residual check, no refinement)."""
+        trans = "T" if transpose else "N"
+        return lambda b: self.factorization.solve(b, trans)
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
         return self._apply(b, "T")

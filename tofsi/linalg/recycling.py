@@ -1,28 +1,46 @@
-"""A sequence of slowly changing systems solved with an old factorization as preconditioner."""
+"""A sequence of slowly changing systems solved with an old factorization or hierarchy as preconditioner."""
 
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
+import pyamg.krylov
 import scipy.sparse.linalg as spla
 
+from tofsi.errors import NumericalError
+
 log = logging.getLogger(__name__)
+GMRES_RESTART = 50          # restart length of GMRES preconditioned by an AMG cycle
 
 
 class RecyclingSolver:
     """Solve a sequence of slowly changing systems ``A_k x = b`` cheaply.
 
-    The last factorization (or AMG hierarchy) preconditions GMRES on the new
-    matrix; when GMRES needs more than ``max_iter`` iterations the new matrix
-    is factorized instead, and when a solve needed more than ``refresh_after``
-    iterations the next matrix is (the preconditioner has gone stale). The
-    rule counts iterations, not seconds, so results never depend on timing
-    (bitwise reproducible runs). Newton tangents of
-    consecutive iterations and increments differ little, so most solves cost a
-    few triangular solves instead of a factorization. Solves are converged to
-    ``rtol`` (relative to ``|b|``), so the answers are those of the new matrix,
-    not the old.
+    ``factorize(A)`` makes a solver of one of two kinds:
+
+    * exact (sparse LU, ``exact = True``): the last factors precondition GMRES
+      on the new matrix; when GMRES needs more than ``max_iter`` iterations the
+      new matrix is factorized instead, and when a solve needed more than
+      ``refresh_after`` iterations the next matrix is (the factors have gone
+      stale). Newton tangents of consecutive iterations and increments differ
+      little, so most solves cost a few triangular solves instead of a
+      factorization.
+    * iterative (an AMG hierarchy, ``exact = False``): every solve is a Krylov
+      solve (CG for symmetric systems, else GMRES) preconditioned by one cycle
+      of the last hierarchy. The first solve after a new hierarchy measures its
+      cost ``c``, iterations per decade of residual reduction. A new hierarchy
+      costs about ``s = solver.setup_iterations`` iterations to build, so a
+      later solve over ``d`` decades that needed more than ``c d + s``
+      iterations marks the hierarchy stale (the next matrix gets a new one),
+      and one that would need more than ``c d + 2 s`` is stopped and finished
+      by a new hierarchy from where it stopped.
+
+    The rules count iterations, not seconds, so results never depend on
+    timing (bitwise reproducible runs). Solves are converged to ``rtol``
+    (relative to ``|b|``; a caller may loosen it per solve for inexact Newton),
+    so the answers are those of the new matrix, not the old.
     """
 
     def __init__(self, factorize, max_iter: int = 20, rtol: float = 1e-10, refresh_after: int = 6):
@@ -30,6 +48,7 @@ class RecyclingSolver:
         self.refresh_after = refresh_after
         self.solver = None
         self.stale = False
+        self.fresh_cost = None             # iterations per decade of a fresh hierarchy
         self.factorizations = 0
         self.krylov_iterations = 0
 
@@ -38,50 +57,91 @@ class RecyclingSolver:
         log.info("new factorization of %d unknowns", A.shape[0])
         self.solver = self.factorize(A)
         self.stale = False
+        self.fresh_cost = None
         self.factorizations += 1
 
-    def _krylov(self, A, b, apply, x0=None, rtol=None):
-        """Right-preconditioned GMRES: minimizes the true residual ``|b - A x|``."""
-        n = A.shape[0]
-        rtol = self.rtol if rtol is None else max(rtol, self.rtol)
-        dtype = np.result_type(A.dtype, b.dtype)
-        r0 = b if x0 is None else b - A @ x0
-        goal = rtol * np.linalg.norm(b)
-        if np.linalg.norm(r0) <= goal:
-            return (np.zeros_like(b) if x0 is None else x0), True
-        AM = spla.LinearOperator((n, n), matvec=lambda v: A @ apply(v), dtype=dtype)
-        count = [0]
+    def _usable(self, A) -> bool:
+        return self.solver is not None and not self.stale and self.solver.shape == A.shape
 
-        def tick(_):
-            count[0] += 1
-        y, info = spla.gmres(AM, r0, rtol=0.0, atol=goal, restart=self.max_iter, maxiter=1,
-                             callback=tick, callback_type="pr_norm")
-        self.krylov_iterations += count[0]
-        self.stale = count[0] > self.refresh_after
-        x = apply(y) if x0 is None else x0 + apply(y)
-        residual = np.linalg.norm(b - A @ x)
-        log.info("GMRES: %d iterations, residual %.2e relative to |b|", count[0], residual / np.linalg.norm(b))
-        ok = info == 0 and np.all(np.isfinite(x)) and residual <= 1.01 * goal
+    def _gmres(self, A, b, apply, x0, goal: float, max_iter: int, restart: int):
+        """Right-preconditioned (flexible) GMRES: minimizes the true residual ``|b - A x|`` and
+        keeps the preconditioned basis, so the update needs no extra preconditioner
+        application; (x, iterations)."""
+        n = A.shape[0]
+        M = spla.LinearOperator((n, n), matvec=apply, dtype=np.result_type(A.dtype, b.dtype))
+        residuals: list[float] = []
+        bnorm = float(np.linalg.norm(b))
+        x, _ = pyamg.krylov.fgmres(A, b, x0=x0, tol=goal / bnorm, restart=min(restart, max_iter),
+                                   maxiter=max(1, -(-max_iter // restart)), M=M, residuals=residuals)
+        return x, len(residuals) - 1
+
+    def _cg(self, A, b, apply, x0, goal: float, max_iter: int):
+        """Preconditioned CG (symmetric positive definite ``A`` and preconditioner); (x, iterations)."""
+        n = A.shape[0]
+        M = spla.LinearOperator((n, n), matvec=apply, dtype=b.dtype)
+        residuals: list[float] = []
+        bnorm = float(np.linalg.norm(b))
+        x, _ = pyamg.krylov.cg(A, b, x0=x0, tol=goal / bnorm, maxiter=max_iter, M=M, residuals=residuals)
+        return x, len(residuals) - 1
+
+    def _krylov(self, A, b, x0=None, rtol=None, transpose=False):
+        """Solve with the current solver as preconditioner: (x, converged)."""
+        rtol = self.rtol if rtol is None else max(rtol, self.rtol)
+        bnorm = float(np.linalg.norm(b))
+        goal = rtol * bnorm
+        r0 = bnorm if x0 is None else float(np.linalg.norm(b - A @ x0))
+        if r0 <= goal:
+            return (np.zeros_like(b) if x0 is None else x0), True
+        apply = self.solver.preconditioner(transpose)
+        if self.solver.exact:
+            x, its = self._gmres(A, b, apply, x0, goal, self.max_iter, self.max_iter)
+            self.stale = its > self.refresh_after
+        else:
+            setup = self.solver.setup_iterations
+            cap = (self.solver.max_iter if self.fresh_cost is None
+                   else int(self.fresh_cost * math.log10(r0 / goal) + 2 * setup) + 1)
+            if self.solver.symmetric:
+                x, its = self._cg(A, b, apply, x0, goal, cap)
+            else:
+                x, its = self._gmres(A, b, apply, x0, goal, cap, GMRES_RESTART)
+        self.krylov_iterations += its
+        residual = float(np.linalg.norm(b - A @ x))
+        ok = bool(np.all(np.isfinite(x))) and residual <= 1.01 * goal
+        if not self.solver.exact and ok:
+            decades = max(math.log10(r0 / max(residual, 1e-300)), 0.1)
+            if self.fresh_cost is None:
+                self.fresh_cost = its / decades
+            self.stale = its > self.fresh_cost * decades + self.solver.setup_iterations
+        log.info("%s: %d iterations, residual %.2e relative to |b|",
+                 "GMRES" if self.solver.exact or not self.solver.symmetric else "CG", its, residual / bnorm)
         return x, ok
 
     def solve(self, A, b: np.ndarray, guess: np.ndarray | None = None,
               rtol: float | None = None) -> np.ndarray:
-        """Solve ``A x = b``; ``guess`` (e.g. the previous increment) starts GMRES,
+        """Solve ``A x = b``; ``guess`` (e.g. the previous increment) starts the iteration,
         ``rtol`` loosens the tolerance for this solve (inexact Newton)."""
         if not np.any(b):
             return np.zeros_like(b)
-        if self.solver is not None and not self.stale and getattr(self.solver, "recycle", True):
-            x, ok = self._krylov(A, b, self.solver.solve, guess, rtol)
+        if self._usable(A):
+            x, ok = self._krylov(A, b, guess, rtol)
             if ok:
                 return x
+            guess = x if np.all(np.isfinite(x)) else guess
         self.refresh(A)
-        return self.solver.solve(b)
+        if self.solver.exact:
+            return self.solver.solve(b) if rtol is None else self.solver.solve(b, max(rtol, self.rtol))
+        x, ok = self._krylov(A, b, guess, rtol)
+        if not ok:
+            raise NumericalError("AMG-preconditioned Krylov solve did not converge",
+                                 {"size": A.shape[0], "rtol": rtol or self.rtol})
+        return x
 
     def solve_transpose(self, A, b: np.ndarray) -> np.ndarray:
+        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance."""
         if not np.any(b):
             return np.zeros_like(b)
-        if self.solver is not None and not self.stale and getattr(self.solver, "recycle", True):
-            x, ok = self._krylov(A.T, b, self.solver.solve_transpose)
+        if self._usable(A) and self.solver.preconditioner(True) is not None:
+            x, ok = self._krylov(A.T, b, transpose=True)
             if ok:
                 return x
         self.refresh(A)

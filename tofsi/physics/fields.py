@@ -297,6 +297,11 @@ class MotionLinearization(Linearization):
     def matrix(self):
         return self._at()[1]
 
+    @property
+    def solver(self):
+        """The forward move's solver (None if there is none yet), recycled by the next move."""
+        return self._solver
+
     def _solver_for(self):
         if self._solver is None:
             self._solver = RecyclingSolver(lambda A: DirectSolver(A, perm=self.motion.base.ordering))
@@ -345,7 +350,8 @@ class MotionField(FieldBlock):
         return MotionLinearization(self, fields, rho, params)
 
     def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
-        result = self.motion.move(fields["u"], rho, progress)
+        recycled = previous.solver if isinstance(previous, MotionLinearization) else None
+        result = self.motion.move(fields["u"], rho, progress, initial=guess, solver=recycled)   # warm starts
         x = result.displacement.ravel()
         values = {**fields, "x": x}
         if self.has_residual:

@@ -145,24 +145,22 @@ class Flow:
         Re, _ = self.element_residual(w, x, rho, jacobian=False, density=density, params=params)
         return assemble_vector(self.dofs, Re, self.size)
 
-    def element_jacobians(self, w, x=None, rho=None, params=None):
-        """``(R_e (E, 22), K_e (E, 22, 22))`` on the mesh moved by ``x``. The last evaluation is
-        kept, keyed by every input: the fluid load's ``S_w`` at a converged state reuses the
-        Jacobian of the Newton solve's last residual check."""
+    def element_jacobians(self, w, x=None, rho=None, params=None, density=None):
+        """``(R_e (E, 22), K_e (E, 22, 22))`` on the mesh moved by ``x`` (``density`` defaults to
+        the flow's). The last evaluation is kept, keyed by every input: the fluid load's ``S_w``
+        at a converged state reuses the Jacobian of the Newton solve's last residual check."""
         rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        density = self.density if density is None else density
         key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(),
-               params, self.density, self.symmetric, self.settings, self.body_force)
+               params, density, self.symmetric, self.settings, self.body_force)
         if self._elements_kept is None or self._elements_kept[0] != key:
-            self._elements_kept = (key, self.element_residual(w, x, rho, params=params))
+            self._elements_kept = (key, self.element_residual(w, x, rho, density=density, params=params))
         return self._elements_kept[1]
 
     def jacobian(self, w, x=None, rho=None, density=None, params=None):
         """``F_w`` as the constrained CSR matrix (identity on fixed dofs), ``F`` and the
         element Jacobians."""
-        if density is None:
-            Re, Ke = self.element_jacobians(w, x, rho, params)
-        else:
-            Re, Ke = self.element_residual(w, x, rho, density=density, params=params)
+        Re, Ke = self.element_jacobians(w, x, rho, params, density)
         return self.bc.matrix(Ke), assemble_vector(self.dofs, Re, self.size), Ke
 
     def shape_elements(self, w, x=None, rho=None, params=None):

@@ -124,11 +124,14 @@ class MeshMotion:
         return rho_bar
 
     # ---- moving and derivatives ------------------------------------------------------
-    def move(self, u, rho=None, progress=None) -> MoveResult:
+    def move(self, u, rho=None, progress=None, initial=None, solver=None) -> MoveResult:
         """Move the mesh with the structure's displacement ``u``: the mover's result, whose
-        ``displacement`` ``(n, 2)`` is the mesh displacement ``x``."""
+        ``displacement`` ``(n, 2)`` is the mesh displacement ``x``. For movers that warm
+        start: ``initial``, a mesh displacement for a nearby motion to start from, and
+        ``solver``, an earlier move's solver to recycle (neither changes the result)."""
         problem = self.problem(rho)
-        result = self.mover.move(problem, self.target(u), progress)
+        start = {"initial": initial, "solver": solver} if self.mover.warm_starts else {}
+        result = self.mover.move(problem, self.target(u), progress, **start)
         result.problem = problem
         return result
 
