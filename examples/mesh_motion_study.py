@@ -122,22 +122,29 @@ def one_layer(study: Study) -> dict:
     return best_rows
 
 
+def two_layer_grid(study: Study, mover: str, problem: str) -> tuple[list[dict], list[dict]]:
+    """The two-layer grid search: coarse (1 to 6 by 0.5), then fine (best +- 0.5 by 0.1);
+    one move per row."""
+    extra = ["mover.spring.diagonals=both"] if mover == "spring" else []
+    rows = study.run(problem, [f"mover.name={mover}", *extra],
+                     [Sweep("mover.layers[0]", COARSE), Sweep("mover.layers[1]", COARSE)])
+    top = best(rows)
+
+    def window(c):
+        half, step = FINE
+        return tuple(float(v) for v in np.round(np.arange(max(1.0, c - half), c + half + 1e-4, step), 6))
+    fine = study.run(problem, [f"mover.name={mover}", *extra],
+                     [Sweep("mover.layers[0]", window(top["mover.layers[0]"])),
+                      Sweep("mover.layers[1]", window(top["mover.layers[1]"]))])
+    write_csv(study.output / f"two_layer_{mover}_{problem}.csv", rows + fine)
+    return rows, fine
+
+
 def two_layer(study: Study, unstiffened: dict, one: dict) -> None:
     lines = []
     for mover in MOVERS:
-        extra = ["mover.spring.diagonals=both"] if mover == "spring" else []
         for problem in PROBLEMS:
-            rows = study.run(problem, [f"mover.name={mover}", *extra],
-                             [Sweep("mover.layers[0]", COARSE), Sweep("mover.layers[1]", COARSE)])
-            top = best(rows)
-
-            def window(c):
-                half, step = FINE
-                return tuple(float(v) for v in np.round(np.arange(max(1.0, c - half), c + half + 1e-4, step), 6))
-            fine = study.run(problem, [f"mover.name={mover}", *extra],
-                             [Sweep("mover.layers[0]", window(top["mover.layers[0]"])),
-                              Sweep("mover.layers[1]", window(top["mover.layers[1]"]))])
-            write_csv(study.output / f"two_layer_{mover}_{problem}.csv", rows + fine)
+            rows, fine = two_layer_grid(study, mover, problem)
             keys = ["mover.layers[0]", "mover.layers[1]"]
             plot_sweep(study.output / f"two_layer_{mover}_{problem}_coarse.png", rows, keys,
                        title=f"{mover}, {problem}: two stiffened layers")

@@ -74,6 +74,9 @@ class MotionProblem:
     blend : (n,) solid indicator per node for the density-blended form
         (see :mod:`movers.blend`); then the prescribed motion is the structural
         displacement of every node, and ``fixed_nodes`` are held at theirs
+    accept_inverted : return a mesh with inverted quads (reported in the quality
+        records) instead of raising; for studies of the map itself, e.g. tuning
+        (a mover whose equations break down at inversion still raises)
     """
 
     points: np.ndarray
@@ -82,6 +85,7 @@ class MotionProblem:
     stiffening: np.ndarray | None = None
     grid: np.ndarray | None = None
     blend: np.ndarray | None = None
+    accept_inverted: bool = False
 
     def __post_init__(self):
         n = self.points.shape[0]
@@ -356,7 +360,9 @@ class Mover(ABC):
             report.factorizations = solver.factorizations
             report.krylov_iterations = solver.krylov_iterations
         last = report.quality[-1] if report.quality else quality_record(problem, x.reshape(-1, 2), 1.0)
-        if last["n_inverted"]:
+        if last["n_inverted"] and problem.accept_inverted:
+            report.message = f"{last['n_inverted']} inverted element(s), accepted"
+        elif last["n_inverted"]:
             report.converged = False
             report.message = (f"{last['n_inverted']} inverted element(s); worst element "
                               f"{last['worst_element']} at {last['worst_location']}")

@@ -14,11 +14,13 @@ README = (ROOT / "README.md").read_text()
 BLOCKS = re.findall(r"^```(\w+)\n(.*?)^```", README, re.S | re.M)
 # Small versions of the README's command lines: overrides per scene, appended to each command.
 SMALL = {"foil_in_channel": ["mesh.h_min=0.05", "mesh.h_max=0.1"],
+         "beam_in_channel": ["mesh.h_min=0.05", "mesh.h_max=0.1", "tune.layers=2", "tune.max_solves=4"],
          "beam_in_channel_optimization": ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.15",
                                           "optimizer.max_iter=4", "design.stage_iterations=2"]}
 EXAMPLE_ARGS = {"optimize_beam_in_channel.py": [], "optimize_fsi.py": [], "compare_movers.py": [],
                 "compare_mesh_motion.py": [],
-                "move_foil.py": ["rotation"], "mesh_motion_study.py": ["all", "--jobs", "2"]}
+                "move_foil.py": ["rotation"], "mesh_motion_study.py": ["all", "--jobs", "2"],
+                "tuning_band_study.py": ["all", "--jobs", "1"]}
 
 
 def env():

@@ -41,6 +41,7 @@ COMMANDS = {
     "check-gradients": "adjoint versus finite differences, block by block and total",
     "solve": "forward analysis of the scene's design (or a saved one) with the effects the scene enables",
     "study": "parametric sweep (stiffening factors, A20, kappa, increments, mesh size) to a CSV and a plot",
+    "tune": "stiffening factors tuned by gradients (NLopt) for the best mesh quality of the scene's motion",
 }
 QUALITY = ("min_skewness", "n_inverted", "min_area_change", "max_area_change")
 LOGGERS = ("tofsi", "movers", "adjoint")          # -v raises only these; third parties stay quiet

@@ -58,12 +58,12 @@ def estimate(scene, command: str = "solve", backend: str = "superlu") -> Estimat
     E, n1, n9 = nx * ny, (nx + 1) * (ny + 1), (2 * nx + 1) * (2 * ny + 1)
     unknowns, entries = {}, {}
     e = scene.effects
-    fluid = e.fluid != "none" and command != "move"
+    fluid = e.fluid != "none" and command not in ("move", "tune")
     if fluid:
         unknowns["flow"] = 2 * n9 + n1
     if fluid and e.structure != "none":
         unknowns["structure"] = 2 * n1
-    if command == "move" or (fluid and e.coupling == "two-way" and e.mesh_motion != "none"):
+    if command in ("move", "tune") or (fluid and e.coupling == "two-way" and e.mesh_motion != "none"):
         unknowns["mesh motion"] = 2 * n1
     for name, n in unknowns.items():
         entries[name] = factor_entries(n, "flow" if name == "flow" else "q1-vector")

@@ -67,7 +67,8 @@ def motion_setup(scene, prescribed: np.ndarray | None = None) -> MotionSetup:
                                             scene.structure, scene.fluid if scene.deformation.mode == "fsi" else None)
     else:
         mesh = build_mesh(scene.geometry, scene.mesh)
-    return MotionSetup(mesh, MeshMotion(mesh, scene), prescribed)
+    size = float(np.max(np.linalg.norm(prescribed, axis=1))) if prescribed.size else 0.0
+    return MotionSetup(mesh, MeshMotion(mesh, scene, motion_size=size), prescribed)
 
 
 def run_move(scene, progress=None, setup: MotionSetup | None = None) -> tuple[MotionSetup, MoveResult]:
@@ -77,9 +78,9 @@ def run_move(scene, progress=None, setup: MotionSetup | None = None) -> tuple[Mo
 
 
 def moved_quality(setup: MotionSetup, displacement: np.ndarray) -> quality.QualitySummary:
-    """Quality of the moving quads after the move."""
+    """Quality of the fluid mesh after the move (every movable quad, also those a band holds)."""
     mesh = setup.mesh
-    return quality.summary(mesh.points, mesh.points + displacement, mesh.quads, setup.moving)
+    return quality.summary(mesh.points, mesh.points + displacement, mesh.quads, setup.motion.movable)
 
 
 def move_figures(scene) -> dict:

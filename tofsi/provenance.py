@@ -28,7 +28,7 @@ from functools import lru_cache
 from pathlib import Path
 
 TABLES = ("geometry", "mesh", "deformation", "effects", "fluid", "structure", "design",
-          "optimizer", "coupled")
+          "optimizer", "coupled", "tune")
 
 
 def _plain(value):
@@ -45,7 +45,8 @@ def scene_tables(scene) -> dict:
     tables = {"name": scene.name, "description": scene.description}
     for key in TABLES:
         tables[key] = _plain(dataclasses.asdict(getattr(scene, key)))
-    mover = {"name": scene.mover.name, "layers": list(scene.mover.layers)}
+    mover = {"name": scene.mover.name, "layers": list(scene.mover.layers),
+             "layers_from": scene.mover.layers_from, "band": _plain(dataclasses.asdict(scene.mover.band))}
     for name, params in scene.mover.params.items():
         mover[name] = _plain(dataclasses.asdict(params))
     tables["mover"] = mover
@@ -159,6 +160,7 @@ def mover_settings(scene) -> dict:
     options = scene.mover.options
     return {"deformation": _plain(dataclasses.asdict(scene.deformation)),
             "mover": {"name": scene.mover.name, "layers": list(scene.mover.layers),
+                      "band": _plain(dataclasses.asdict(scene.mover.band)),
                       "params": _plain(dataclasses.asdict(options)) if options is not None else {}},
             "mesh": _plain(dataclasses.asdict(scene.mesh))}
 

@@ -23,8 +23,8 @@ from typing import Any, Mapping
 import movers
 from tofsi.config import build, coerce, option
 from tofsi.errors import InputError
-from tofsi.settings import (CoupledSettings, DesignSettings, FluidSettings, OptimizerSettings,
-                            SolverSettings, StructureSettings)
+from tofsi.settings import (BandSettings, CoupledSettings, DesignSettings, FluidSettings,
+                            OptimizerSettings, SolverSettings, StructureSettings, TuneSettings)
 
 THIN = 1e-6                 # solids thinner than this fraction of the channel get a warning
 MIN_ELEMENTS_ACROSS = 4     # mesh.h_max is at most the channel's smaller side over this
@@ -134,6 +134,7 @@ class MoverSettings:
     layers: tuple[float, ...] = ()
     params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     layers_from: str = "density"
+    band: BandSettings = dataclasses.field(default_factory=BandSettings)
 
     @property
     def options(self):
@@ -157,6 +158,7 @@ class Scene:
     design: DesignSettings
     optimizer: OptimizerSettings
     coupled: CoupledSettings
+    tune: TuneSettings = dataclasses.field(default_factory=TuneSettings)
     source: str = ""
     solver: SolverSettings = dataclasses.field(default_factory=SolverSettings)
 
@@ -168,7 +170,7 @@ class Scene:
 _TABLES = {"geometry": Geometry, "mesh": MeshSettings, "deformation": Deformation,
            "fluid": FluidSettings, "structure": StructureSettings, "design": DesignSettings,
            "optimizer": OptimizerSettings, "coupled": CoupledSettings,
-           "solver": SolverSettings}
+           "solver": SolverSettings, "tune": TuneSettings}
 _TOP = {"name", "description", "effects", "mover", *_TABLES}
 
 
@@ -181,15 +183,17 @@ def _build_mover(raw: dict, mover_name: str) -> MoverSettings:
     layers = raw.pop("layers", [])
     layers_from = coerce(str, raw.pop("layers_from", "density"), "mover.layers_from",
                          dict(choices=LAYERS_FROM))
+    band = build(BandSettings, raw.pop("band", {}), "mover.band")
     for key, value in raw.items():
         if key not in names:
-            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, layers_from, or a "
+            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, layers_from, "
+                             "band, or a "
                              "parameter table of one of " + ", ".join(map(repr, names)))
     factors = coerce(tuple[float, ...], layers, "mover.layers",
                      dict(gt=0, doc="stiffening factor per element layer"))
     params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
     return MoverSettings(name=mover_name, layers=factors, params=MappingProxyType(params),
-                         layers_from=layers_from)
+                         layers_from=layers_from, band=band)
 
 
 def _mover_name(raw: dict) -> str:
@@ -363,6 +367,7 @@ def reference_table() -> str:
     for key, cls in _TABLES.items():
         rows += documentation(cls, key)
     rows += [r for r in documentation(Effects, "effects")]
+    rows += documentation(BandSettings, "mover.band")
     for name in movers.available():
         rows += documentation(movers.mover_class(name).Params, f"mover.{name}")
 

@@ -205,3 +205,58 @@ class SolverSettings:
                                    "robust on a shared machine; 0: leave as the environment says)")
     max_memory_gb: float = option(0.0, ge=0, doc="refuse a solve whose estimated memory exceeds "
                                                  "this [GB] (0: the machine's available memory)")
+
+
+BAND_MODES = ("off", "auto", "layers", "distance")
+
+
+@dataclass(frozen=True)
+class BandSettings:
+    """Band-localized mesh motion (table ``[mover.band]``, see :mod:`tofsi.band`)."""
+
+    mode: str = option("off", choices=BAND_MODES,
+                       doc="off: the mover moves the whole fluid mesh; layers / distance: only the "
+                           "quads within `layers` element layers / `distance` of the structure, the "
+                           "band's outer edge held fixed; auto: the distance from the size of the motion")
+    layers: int = option(8, ge=1, le=100_000, doc="element layers of the band (mode layers); the "
+                                                   "least the band holds in mode auto")
+    distance: float = option(0.1, gt=0, doc="reach of the band from the structure [m] (mode distance)")
+    motion_multiple: float = option(15.0, gt=0, doc="mode auto: the band reaches this multiple of the "
+                                                   "structure's largest displacement (when known: "
+                                                   "mesh-motion scenes; else `layers`)")
+
+
+TUNE_PARAMETRIZATIONS = ("layers", "profile")
+TUNE_ALGORITHMS = ("SLSQP", "MMA", "CCSAQ", "LBFGS")
+
+
+@dataclass(frozen=True)
+class TuneSettings:
+    """Stiffening factors tuned by gradients (table ``[tune]``, ``tofsi tune``; see :mod:`tofsi.tuning`)."""
+
+    parametrization: str = option("layers", choices=TUNE_PARAMETRIZATIONS,
+                                  doc="layers: one factor per element layer from the interface; "
+                                      "profile: f_k = 1 + a exp(-(k - 1) / L) on every layer k (design a, L)")
+    layers: int = option(12, ge=1, le=1000, doc="number of tuned layers (parametrization layers)")
+    ks: tuple[float, ...] = option((60.0, 240.0), gt=0, doc="Kreisselmeier-Steinhauser parameters of the soft "
+                                   "minimum of the corner skewness: one optimization stage each")
+    min_factor: float = option(1.0, gt=0, doc="smallest tuned factor (profile: smallest 1 + a)")
+    max_factor: float = option(20.0, gt=0, doc="largest tuned factor (profile: largest 1 + a)")
+    min_area_change: float = option(0.0, ge=0, doc="constraint: soft minimum of the area change >= "
+                                                   "this (0: no constraint)")
+    max_area_change: float = option(0.0, ge=0, doc="constraint: soft maximum of the area change <= "
+                                                   "this (0: no constraint)")
+    algorithm: str = option("CCSAQ", choices=TUNE_ALGORITHMS, doc="NLopt gradient algorithm (LD_*)")
+    max_solves: int = option(24, ge=2, le=100_000, doc="largest number of mover solves, forward moves "
+                             "and adjoint solves (vector-Jacobian products) together")
+    tol_objective: float = option(1e-4, gt=0, doc="stop on an absolute change of the soft minimum below")
+
+    def __post_init__(self):
+        if not self.ks:
+            raise InputError("ks", list(self.ks), "give at least one KS parameter, e.g. [60.0]")
+        if self.min_factor >= self.max_factor:
+            raise InputError("max_factor", self.max_factor,
+                             f"allowed: max_factor > min_factor = {self.min_factor}")
+        if self.min_area_change and self.max_area_change and self.min_area_change >= self.max_area_change:
+            raise InputError("max_area_change", self.max_area_change,
+                             f"allowed: 0 or > min_area_change = {self.min_area_change}")

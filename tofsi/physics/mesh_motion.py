@@ -19,6 +19,9 @@ counted from the interface of the fixed solid, or in design scenes, with
 ``mover.layers_from = "density"`` (the default), to the layers grown from the
 densities themselves (:class:`~tofsi.physics.indicators.DensityLayers`): the
 stiffening follows the evolving design and is differentiable in rho.
+With ``mover.band`` only the quads of a band around the structure move, the
+band's outer edge held fixed (:mod:`tofsi.band`); every map below keeps its
+full size (2n), the nodes outside the band being fixed ones.
 """
 
 from __future__ import annotations
@@ -28,8 +31,9 @@ import scipy.sparse as sp
 
 import movers
 from movers.base import MotionProblem, MoveResult
+from tofsi.band import find_band
 from tofsi.layers import element_layers, stiffening_field
-from tofsi.mesh import SOLID
+from tofsi.mesh import FLUID, SOLID
 from tofsi.physics.indicators import DensityLayers, solid_indicator
 
 __all__ = ["MeshMotion", "solid_indicator"]
@@ -40,7 +44,9 @@ LAYERS_SHOWN = 10          # element layers counted (and written to outputs) at 
 class MeshMotion:
     """A scene's mover applied to its mesh, with the maps to and from the other fields."""
 
-    def __init__(self, mesh, scene):
+    def __init__(self, mesh, scene, motion_size: float | None = None):
+        """``motion_size``: the structure's largest displacement [m] when known beforehand
+        (mesh-motion studies), for the automatic band width (``mover.band``)."""
         self.mesh = mesh
         self.mover = movers.mover_class(scene.mover.name)(scene.mover.options)
         self.blended = scene.has_design
@@ -56,9 +62,19 @@ class MeshMotion:
         if self.blended:
             moving, fixed = np.arange(mesh.n_elements), boundary
             self.follows = np.setdiff1d(np.arange(mesh.n_nodes), boundary)
+            structure = mesh.region != FLUID
         else:
             moving, fixed = np.flatnonzero(~solid), np.union1d(mesh.nodes_of(SOLID), boundary)
             self.follows = np.setdiff1d(mesh.nodes_of(SOLID), boundary)
+            structure = solid
+        self.movable = moving                    # the quads the full-domain form moves
+        movable = np.zeros(mesh.n_elements, dtype=bool)
+        movable[moving] = True
+        self.band = find_band(mesh, movable, structure, scene.mover.band, motion_size)
+        if self.band is not None:                # only the band moves; its outer edge stays
+            moving = np.flatnonzero(self.band.elements)
+            fixed = np.union1d(fixed, self.band.edge_nodes)
+            self.follows = np.setdiff1d(self.follows, self.band.outside_nodes)
         self.moving = moving
         self.base = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
 
