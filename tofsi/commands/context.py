@@ -35,6 +35,12 @@ class RunContext:
         if not self.quiet:
             print(text, file=sys.stderr if self.json else sys.stdout, flush=True)
 
+    def warn(self, text: str) -> None:
+        """A result the user must not take at face value: one line on stderr (even with -q),
+        kept for run.json (``warnings``)."""
+        print(f"warning: {text}", file=sys.stderr, flush=True)
+        self.extra.setdefault("warnings", []).append(text)
+
     def begin(self) -> None:
         """Call before the first write: the previous run's files go, run.json is written."""
         if self.folder is not None:

@@ -95,10 +95,19 @@ def run(scene, args, ctx) -> dict:
                 f"and the projection of stage {about['stage']} (beta {about['beta']:g})")
     with ctx.step(f"solving {fields} on {model.mesh.n_elements} quads"):
         state = model.solve(rho, params=None if problem is None else problem.params)
-    if model.structure is not None:                  # metres of displacement are no result
+    warnings = []
+    if model.structure is not None and state.x is not None:      # the mesh moved with it
         model.structure.check_displacement(state.u)
+    elif model.structure is not None:                # one-way: the linear model's answer, flagged
+        beyond = model.structure.displacement_beyond_channel(state.u)
+        if beyond:
+            warnings.append(beyond + ": the small-strain answer for a design far too soft for the "
+                            "flow, not a physical state (optimize starts from it); for a designed "
+                            "structure: --design FILE (the design.npy of tofsi optimize) with --stage last")
+    for text in warnings:
+        ctx.warn(text)
     figures = {"scene": scene.name, "converged": state.converged, **model.figures(state),
-               "wall_time_s": state.reports["wall_time_s"], **about}
+               "wall_time_s": state.reports["wall_time_s"], **about, "warnings": warnings}
     if problem is not None:
         figures["objective"] = problem.objective.value(model, state)
         figures["volume"] = problem.volume_fraction.value(model, state)

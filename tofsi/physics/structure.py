@@ -115,15 +115,23 @@ class Structure:
         factor = self.factorize(rho, params) if factor is None else factor
         return factor.solve(self.bc.homogenize(self.load(w, x, rho, params)))
 
-    def check_displacement(self, u) -> None:
-        """A displacement larger than the channel is a failure, not a result (a structure that
-        is not held, or far too soft for small-strain elasticity)."""
+    def displacement_beyond_channel(self, u) -> str:
+        """A sentence if the largest displacement exceeds the channel's extent (a structure
+        far too soft for small-strain elasticity), else ``""``."""
         largest = float(np.max(np.linalg.norm(u.reshape(-1, 2), axis=1)))
         extent = float(np.ptp(self.mesh.points, axis=0).max())
-        if not largest <= extent:
-            raise NumericalError(f"structure: displacement {largest:.3g} m exceeds the channel ({extent:.3g} m): "
-                                 "the structure is not held by structure.clamped or is far too soft",
-                                 {"max_displacement": largest, "channel_size": extent})
+        if largest <= extent:
+            return ""
+        return f"structure: displacement {largest:.3g} m exceeds the channel ({extent:.3g} m)"
+
+    def check_displacement(self, u) -> None:
+        """A displacement larger than the channel is a failure, not a result, where the mesh
+        moves with it (two-way): a structure that is not held, or far too soft."""
+        beyond = self.displacement_beyond_channel(u)
+        if beyond:
+            raise NumericalError(beyond + ": the structure is not held by structure.clamped or is far too soft",
+                                 {"max_displacement": float(np.max(np.linalg.norm(u.reshape(-1, 2), axis=1))),
+                                  "channel_size": float(np.ptp(self.mesh.points, axis=0).max())})
 
     def fluid_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
         """``S_w = -df/dw`` (2n x size of w) at the flow state ``w``."""
