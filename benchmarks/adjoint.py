@@ -9,9 +9,9 @@ little noise: a design the soft structure can hold) the script times
 * ``forward``  -- the coupled solve of a design warm-started from a nearby
   design (as inside an optimization), and ``cold`` from scratch;
 * ``adjoint``  -- the gradients of the objective and of the volume constraint
-  together (one adjoint solve; the volume needs none), including the blocks;
-* ``blocks``   -- assembling every partial-derivative block, against one forward
-  residual-and-Jacobian assembly (``assembly``);
+  together (one adjoint solve; the volume needs none), including the blocks they build;
+* ``blocks``   -- assembling every partial-derivative block (on a fresh state), against
+  one forward residual-and-Jacobian assembly (``assembly``);
 * ``FD/var``   -- a finite-difference gradient's cost per design variable (one
   warm forward solve; central differences need two).
 
@@ -73,43 +73,55 @@ def post_design(problem, rng):
     return np.clip(gamma + 0.05 * rng.uniform(-1, 1, gamma.size), 0.0, 1.0)
 
 
+def time_iteration(problem, gamma, rng) -> dict:
+    """Times of one design iteration from ``gamma``: a cold solve, a warm solve of a nearby
+    design and its adjoint (objective and volume gradients, building whatever blocks they
+    need), then, on a third nearby design's fresh state, every partial block and one assembly."""
+    import numpy as np
+
+    from adjoint import Adjoint
+
+    def nearby(g):
+        return np.clip(g + 0.01 * rng.uniform(-1, 1, g.size), 0.0, 1.0)
+
+    t0 = time.perf_counter()
+    problem.solve(gamma)
+    cold = time.perf_counter() - t0
+    gamma2 = nearby(gamma)                     # the next design iterate
+    t0 = time.perf_counter()
+    state = problem.solve(gamma2)
+    forward = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    problem.evaluate(gamma2)
+    problem.constraints(gamma2)
+    adjoint = time.perf_counter() - t0
+    system = problem.model.system_for(state.params)
+    method = Adjoint(system, state).method()
+    fresh = problem.solve(nearby(gamma2))     # blocks not yet built by any adjoint
+    t0 = time.perf_counter()
+    for block in system.blocks:                # every partial block as a sparse matrix
+        lin = fresh.linearizations[block.name]
+        for other in block.inputs:
+            lin.coupling(other)
+        lin.density()
+    blocks = time.perf_counter() - t0
+    assembly = assembly_time(problem.model, system, fresh)
+    return {"elements": problem.model.mesh.n_elements, "design_variables": problem.n_design,
+            "dofs": sum(b.size for b in system.blocks), "cold_s": cold, "forward_s": forward,
+            "adjoint_s": adjoint, "blocks_s": blocks, "assembly_s": assembly,
+            "fd_per_variable_s": forward, "method": method, "fd_gradient_s": forward * problem.n_design}
+
+
 def run_fsi_case(h: float, coupling: str) -> dict:
     """The headline scene at its last stage (beta 16), one-way or two-way, at the post design."""
     import numpy as np
 
     import tofsi
-    from adjoint import Adjoint
 
     problem = tofsi.Problem(tofsi.load_scene(FSI_SCENE, [f"mesh.h_min={h}", f"mesh.h_max={h}"]))
     problem.set_stage(beta=problem.scene.design.beta[-1], coupling=coupling)
     rng = np.random.default_rng(0)
-    gamma = post_design(problem, rng)
-    t0 = time.perf_counter()
-    problem.solve(gamma)
-    cold = time.perf_counter() - t0
-    gamma2 = np.clip(gamma + 0.01 * rng.uniform(-1, 1, gamma.size), 0.0, 1.0)
-    t0 = time.perf_counter()
-    state = problem.solve(gamma2)
-    forward = time.perf_counter() - t0
-    system = problem.model.system_for(state.params)
-    t0 = time.perf_counter()
-    for block in system.blocks:
-        lin = state.linearizations[block.name]
-        for other in block.inputs:
-            lin.coupling(other)
-        lin.density()
-    blocks = time.perf_counter() - t0
-    assembly = assembly_time(problem.model, system, state)
-    t0 = time.perf_counter()
-    problem.evaluate(gamma2)
-    problem.constraints(gamma2)
-    adjoint = time.perf_counter() - t0
-    model = problem.model
-    return {"elements": model.mesh.n_elements, "design_variables": problem.n_design,
-            "dofs": sum(b.size for b in system.blocks), "cold_s": cold, "forward_s": forward,
-            "adjoint_s": adjoint, "blocks_s": blocks, "assembly_s": assembly,
-            "fd_per_variable_s": forward, "method": Adjoint(system, state).method(),
-            "fd_gradient_s": forward * problem.n_design}
+    return time_iteration(problem, post_design(problem, rng), rng)
 
 
 def run_case(h: float) -> dict:
@@ -117,38 +129,11 @@ def run_case(h: float) -> dict:
     import numpy as np
 
     import tofsi
-    from adjoint import Adjoint
 
-    overrides = [f"mesh.h_min={h}", f"mesh.h_max={h}"]
-    problem = tofsi.Problem(tofsi.load_scene(SCENE, overrides))
+    problem = tofsi.Problem(tofsi.load_scene(SCENE, [f"mesh.h_min={h}", f"mesh.h_max={h}"]))
     rng = np.random.default_rng(0)
-    gamma = problem.initial_design() + 0.05 * rng.uniform(-1, 1, problem.n_design)
-    t0 = time.perf_counter()
-    problem.solve(gamma)
-    cold = time.perf_counter() - t0
-    gamma2 = gamma + 0.01 * rng.uniform(-1, 1, problem.n_design)     # the next design iterate
-    t0 = time.perf_counter()
-    state = problem.solve(gamma2)
-    forward = time.perf_counter() - t0
-    model = problem.model
-    t0 = time.perf_counter()
-    for block in model.system.blocks:           # every partial block as a sparse matrix
-        lin = state.linearizations[block.name]
-        for other in block.inputs:
-            lin.coupling(other)
-        lin.density()
-    blocks = time.perf_counter() - t0
-    assembly = assembly_time(model, model.system_for(state.params), state)
-    t0 = time.perf_counter()
-    problem.evaluate(gamma2)
-    problem.constraints(gamma2)
-    adjoint = time.perf_counter() - t0
-    method = Adjoint(model.system, state).method()
-    return {"elements": model.mesh.n_elements, "design_variables": problem.n_design,
-            "dofs": model.flow.size + model.structure.size,
-            "cold_s": cold, "forward_s": forward, "adjoint_s": adjoint, "blocks_s": blocks,
-            "assembly_s": assembly, "fd_per_variable_s": forward, "method": method,
-            "fd_gradient_s": forward * problem.n_design}
+    gamma = np.clip(problem.initial_design() + 0.05 * rng.uniform(-1, 1, problem.n_design), 0.0, 1.0)
+    return time_iteration(problem, gamma, rng)
 
 
 def measure(case: list[str], repeat: int) -> dict:
