@@ -9,7 +9,7 @@ region. The flow is steady Navier-Stokes with Brinkman friction in the
 solid; the structure is linear elastic (SIMP); the coupling is one-way (the
 deformation is 10 micrometres at E = 1e7 Pa). The adjoint gives the
 gradient, NLopt's MMA takes the steps, and the projection gets sharper and
-the Brinkman interpolation less convex stage by stage. About three minutes
+the Brinkman interpolation less convex stage by stage. About 75 seconds
 on two cores; ``optimize_fsi.py`` is the two-way version with mesh motion:
 
     python examples/optimize_beam_in_channel.py [--output results/beam_in_channel_optimization]
