@@ -13,7 +13,11 @@ that page, e.g. ``docs/mesh_motion_study.md``):
 * ``band`` -- full domain against the automatic band (:mod:`tofsi.band`) and a
   narrower one: the 8 degree foil rotation of ``benchmarks/movers.py`` at its mesh
   sizes (each mover: minimum skewness, minimum / maximum area change, time of the
-  mesh motion, setup of the band included), and the twelve problem x mover cases.
+  mesh motion, setup of the band included), and the twelve problem x mover cases;
+* ``reach`` -- why no band meets both the quality and the time target on that
+  benchmark: at one mesh size (``--reach-refine``, default the largest), the band's
+  reach swept from 8 to 15 times the largest displacement, against the full-domain
+  solution's displacement on the band's edge and the share of the quads it moves.
 
     python examples/tuning_band_study.py all --jobs 2 --docs docs/mesh_motion_study.md
     python examples/tuning_band_study.py band --refine 2.2 3.8
@@ -24,6 +28,7 @@ or the band study split into runs side by side, then its tables from their CSV f
     python examples/tuning_band_study.py band --refine 12 --no-problems --movers spring --output results/b1
     python examples/tuning_band_study.py band --refine 12 --no-problems --movers linear yeoh --output results/b2
     python examples/tuning_band_study.py tables --merge results/b1 results/b2 --docs docs/mesh_motion_study.md
+    python examples/tuning_band_study.py reach --movers linear yeoh --docs docs/mesh_motion_study.md
 
 Times are the CPU time of the process (wall time beside it): on a shared machine
 it is the fair measure of the work.
@@ -62,9 +67,11 @@ PAPER_BEST = {  # Abdelhamid & Czekanski, Table 3 ("Summary of all minimum skewn
     "yeoh": [0.512, 0.613, 0.683, 0.691],      # two layers
 }
 REFINE = [2.2, 3.8, 6.9, 12.0]               # benchmarks/movers.py: about 1e4 .. 2.4e5 nodes
+MULTIPLES = [8.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0]   # reach study: band reach / largest displacement
 SMALL = os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0"
 if SMALL:
     REFINE = [0.5]
+    MULTIPLES = [5.0, 15.0]
 
 
 def scene(problem: str, *overrides):
@@ -241,6 +248,53 @@ def band_tables(rows: list[dict]) -> str:
             + "\nThe four problems, graded meshes (scene defaults):\n\n" + markdown_table(["problem", *head], problems))
 
 
+# ---- reach ------------------------------------------------------------------------------------
+def reach_study(output: Path, refine: float, movers, multiples=MULTIPLES) -> str:
+    """The band's reach swept at one benchmark mesh: quality loss, share of the quads, CPU time,
+    and how much the full-domain solution still moves where the band holds the mesh fixed."""
+    rows = []
+    for mover in movers:
+        base = benchmark_overrides(refine, mover)
+        setup = motion_setup(tofsi.load_scene(SCENES / "foil_in_channel.toml", base))
+        size = float(np.linalg.norm(setup.prescribed, axis=1).max())
+        c0 = time.process_time()                # as timed_move: building the motion included
+        motion = MeshMotion(setup.mesh, tofsi.load_scene(SCENES / "foil_in_channel.toml", base), motion_size=size)
+        u_full = motion.move(setup.prescribed).displacement
+        full_cpu = time.process_time() - c0
+        full_q = moved_quality(type(setup)(setup.mesh, motion, setup.prescribed), u_full)
+        moved = np.linalg.norm(u_full, axis=1)[setup.mesh.quads[motion.movable]].max(axis=1) / size
+        for multiple in multiples:
+            sc = tofsi.load_scene(SCENES / "foil_in_channel.toml",
+                                  base + ["mover.band.mode=auto", f"mover.band.motion_multiple={multiple}"])
+            row = timed_move(sc, setup)
+            band = MeshMotion(setup.mesh, sc, motion_size=size).band
+            edge = float(np.linalg.norm(u_full[band.edge_nodes], axis=1).max()) / size
+            rows.append({"mover": mover, "nodes": setup.mesh.n_nodes, "multiple": multiple,
+                         "reach_m": row["reach_m"], "share": row["moving"] / motion.movable.size,
+                         "min_skewness_full": full_q.min_skewness, "min_skewness": row["min_skewness"],
+                         "loss": full_q.min_skewness - row["min_skewness"], "cpu_full_s": full_cpu,
+                         "cpu_s": row["cpu_s"], "cpu_ratio": row["cpu_s"] / full_cpu, "edge_motion": edge,
+                         "quads_moved_5pct": float(np.mean(moved > 0.05)),
+                         "quads_moved_10pct": float(np.mean(moved > 0.10))})
+            write_csv(output / "reach.csv", rows)
+            print(" ".join(f"{k}={_fmt(v, 4)}" for k, v in rows[-1].items()), flush=True)
+    return reach_table(rows)
+
+
+def reach_table(rows: list[dict]) -> str:
+    lines = [[r["mover"], int(r["nodes"]), r["multiple"], r["reach_m"], f"{r['share']:.2f}",
+              f"{r['min_skewness_full']:.4f}", f"{r['min_skewness']:.4f}", f"{r['loss']:.4f}",
+              "yes" if r["loss"] <= 0.01 else "no", f"{r['cpu_ratio']:.2f}",
+              "yes" if r["cpu_ratio"] <= 0.5 else "no", f"{r['edge_motion']:.2f}"] for r in rows]
+    spread = sorted({(r["mover"], f"{r['quads_moved_5pct']:.2f}", f"{r['quads_moved_10pct']:.2f}") for r in rows})
+    note = "; ".join(f"{m}: {a} / {b}" for m, a, b in spread)
+    return (markdown_table(["mover", "nodes", "reach / largest displacement", "reach [m]", "band quads / full",
+                            "min skew full", "min skew band", "loss", "loss <= 0.01", "CPU ratio",
+                            "CPU ratio <= 0.5", "full-domain motion on the band edge / largest"], lines)
+            + f"\nShare of the movable quads the full-domain solve moves by more than 5 % / 10 % of "
+              f"the largest displacement: {note}.\n")
+
+
 # ---- output ----------------------------------------------------------------------------------
 def update_docs(path: Path, parts: dict) -> None:
     """Put each study's tables between its markers ``<!-- tuning-band-study:<key>:start/end -->``."""
@@ -254,13 +308,15 @@ def update_docs(path: Path, parts: dict) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("study", choices=["tuning", "band", "all", "tables"],
+    parser.add_argument("study", choices=["tuning", "band", "reach", "all", "tables"],
                         help="tables: rebuild the tables from the CSV files of earlier runs")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes of the grid search")
     parser.add_argument("--refine", type=float, nargs="*", default=REFINE,
                         help="band: the benchmark's mesh refinements (none: skip the benchmark)")
+    parser.add_argument("--reach-refine", type=float, default=REFINE[-1],
+                        help="reach: the benchmark's mesh refinement of the sweep")
     parser.add_argument("--no-problems", action="store_true", help="band: only the benchmark meshes")
-    parser.add_argument("--movers", nargs="+", choices=MOVERS, default=MOVERS, help="band: these movers only")
+    parser.add_argument("--movers", nargs="+", choices=MOVERS, default=MOVERS, help="band, reach: these movers only")
     parser.add_argument("--grid", type=Path, default=Path("results/mesh_motion_study/graded"),
                         help="folder of an earlier two-layer grid search (mesh_motion_study.py)")
     parser.add_argument("--output", type=Path, default=Path("results/tuning_band_study"))
@@ -273,7 +329,7 @@ def main() -> None:
     previous = args.output / "tables.md"
     if previous.is_file():                          # keep the other study's tables
         text = previous.read_text()
-        for key in ("tuning", "band"):
+        for key in ("tuning", "band", "reach"):
             tag = f"<!-- {key} -->"
             if tag in text:
                 parts[key] = text.split(tag)[1]
@@ -282,7 +338,12 @@ def main() -> None:
     if args.study in ("band", "all"):
         parts["band"] = band_study(args.output, args.refine, problems=not args.no_problems,
                                    movers=args.movers)
+    if args.study in ("reach", "all"):
+        parts["reach"] = reach_study(args.output, args.reach_refine,
+                                     ["linear"] if args.study == "all" else args.movers)
     if args.study == "tables":
+        if (args.output / "reach.csv").is_file():
+            parts["reach"] = reach_table(read_csv(args.output / "reach.csv"))
         if (args.output / "tuning.csv").is_file():
             parts["tuning"] = tuning_table(read_csv(args.output / "tuning.csv"),
                                            Study(args.output, "graded", args.jobs), args.grid)
@@ -293,7 +354,7 @@ def main() -> None:
             band_rows.sort(key=lambda r: (r["case"] != "rotation 8 deg", r["refine"], order[r["mover"]],
                                           order.get(r["case"], -1), order[r["band"]]))
             parts["band"] = band_tables(band_rows)
-    section = "".join(f"<!-- {key} -->\n{parts[key].strip()}\n<!-- {key} -->\n" for key in ("tuning", "band")
+    section = "".join(f"<!-- {key} -->\n{parts[key].strip()}\n<!-- {key} -->\n" for key in ("tuning", "band", "reach")
                       if key in parts)
     write_text(previous, section)
     if args.docs:
