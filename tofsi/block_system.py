@@ -15,7 +15,13 @@ components, in topological order, are solved one after the other:
   - monolithic: Newton on the assembled block Jacobian
     ``[[dR_a/dz_b]]`` (every block of the cycle needs a residual form), with
     a backtracking line search on the largest block residual scaled by the
-    block's force scale. With ``quasi_newton`` the couplings a block marks as
+    block's force scale. Each Newton step is solved inexactly, to the
+    Eisenstat-Walker relative tolerance (:func:`tofsi.iteration.forcing_term`;
+    convergence is judged on the true residual), by GMRES preconditioned with
+    block Gauss-Seidel over the fields' own factorizations (``linear_solver =
+    "block"``, :class:`~tofsi.linalg.BlockGaussSeidel`; the whole Jacobian's LU
+    when GMRES fails) or by the whole Jacobian's LU (``"direct"``), either kept
+    for the later iterates and the adjoint. With ``quasi_newton`` the couplings a block marks as
     slow to build and slow to change (``FieldBlock.slow_couplings``: the shape
     derivatives with respect to the mesh motion) are built at the first
     iterate and kept for the rest of the solve; the converged state's exact
@@ -38,8 +44,8 @@ import scipy.sparse as sp
 
 from tofsi.blocks import Continuation, FieldBlock, Linearization, State
 from tofsi.errors import InputError, NumericalError
-from tofsi.iteration import aitken, backtracking
-from tofsi.linalg import DirectSolver, RecyclingSolver, nested_dissection
+from tofsi.iteration import aitken, backtracking, forcing_term
+from tofsi.linalg import BlockGaussSeidel, DirectSolver, RecyclingSolver, nested_dissection
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +53,8 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class CouplingSettings:
     """How cycles are solved: ``method`` partitioned or monolithic, tolerance, iterations,
-    the first relaxation factor (partitioned) and the relaxed field."""
+    the first relaxation factor (partitioned), the relaxed field, and (monolithic) whether
+    the shape couplings are kept (``quasi_newton``) and the Newton's ``linear_solver``."""
 
     method: str = "partitioned"
     tol: float = 1e-9
@@ -55,6 +62,7 @@ class CouplingSettings:
     relaxation: float = 0.5
     relax: str | None = None
     quasi_newton: bool = True
+    linear_solver: str = "block"
 
 
 class CoupledLinearization:
@@ -98,6 +106,7 @@ class BlockSystem:
         sizes = [b.size for b in self.blocks]
         self.offsets = dict(zip(self.names, np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)))
         self.size = int(sum(sizes))
+        self._orderings: dict[tuple[str, ...], np.ndarray | None] = {}
 
     # ---- structure ------------------------------------------------------------------
     def _components(self) -> list[tuple[str, ...]]:
@@ -169,13 +178,34 @@ class BlockSystem:
         return sp.bmat(rows, format="csr")
 
     def ordering(self, names) -> np.ndarray | None:
-        """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid)."""
+        """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid);
+        computed once per tuple of names (the blocks' grids never change)."""
+        names = tuple(names)
+        if names not in self._orderings:
+            self._orderings[names] = self._nested_dissection(names)
+        return self._orderings[names]
+
+    def _nested_dissection(self, names) -> np.ndarray | None:
         grids = [self.by_name[n].ordering_grid() for n in names]
         if any(g is None for g in grids):
             return None
         coords = np.vstack([g[0] for g in grids])
         last = np.concatenate([g[1] for g in grids])
         return nested_dissection(coords, last=last)
+
+    def linear_solver(self, comp, kind: str | None = None) -> RecyclingSolver:
+        """The Newton's linear solver of the cycle ``comp`` (``kind``: else the settings'
+        ``linear_solver``): ``block``, GMRES preconditioned by block Gauss-Seidel over the
+        fields' own factorizations (:class:`~tofsi.linalg.BlockGaussSeidel`), kept for the
+        later iterates and the adjoint while it stays cheap; ``direct``, the LU of the whole
+        Jacobian, whose factors precondition GMRES for the later iterates and the adjoint."""
+        kind = kind or self.settings.linear_solver
+        if kind == "direct":
+            perm = self.ordering(comp)
+            return RecyclingSolver(lambda A: DirectSolver(A, perm=perm))
+        sizes = [self.by_name[n].size for n in comp]
+        orderings = [self.ordering((n,)) for n in comp]
+        return RecyclingSolver(lambda A: BlockGaussSeidel(A, sizes, orderings))
 
     # ---- forward solve ------------------------------------------------------------------
     def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,
@@ -255,8 +285,7 @@ class BlockSystem:
         s = self.settings
         rho, params = state.rho, state.params
         self._start(comp, fields, state, None)
-        perm = self.ordering(comp)
-        solver = RecyclingSolver(lambda A: DirectSolver(A, perm=perm))
+        solver = self.linear_solver(comp)
         blocks = [self.by_name[n] for n in comp]
         scales, history, kept = None, [], None
 
@@ -284,7 +313,16 @@ class BlockSystem:
             if kept is None and s.quasi_newton:         # the slow couplings of the first iterate
                 kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
                         for o in getattr(b, "slow_couplings", ()) if o in comp}
-            dz = self.split(solver.solve(self.jacobian(lins, comp, kept), -np.concatenate(R)), comp)
+            J, b = self.jacobian(lins, comp, kept), -np.concatenate(R)
+            eta = forcing_term([max(h[n] for n in comp) for h in history], s.tol)    # inexact Newton
+            try:
+                step = solver.solve(J, b, rtol=eta)
+            except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
+                log.warning("monolithic Newton %d: %s; factorizing the whole Jacobian instead", it, err)
+                history[-1]["fallback"] = "direct"
+                solver = self.linear_solver(comp, "direct")
+                step = solver.solve(J, b, rtol=eta)
+            dz = self.split(step, comp)
 
             def trial(alpha):
                 values = dict(fields)

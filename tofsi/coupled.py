@@ -82,7 +82,7 @@ class CoupledModel:
             blocks.append(MotionField(self.motion))
         c = scene.coupled
         settings = CouplingSettings(c.method, c.tol, c.max_iter, c.relaxation, relax="u",
-                                    quasi_newton=c.quasi_newton)
+                                    quasi_newton=c.quasi_newton, linear_solver=c.linear_solver)
         self.system = BlockSystem(blocks, settings)
         self.one_way_system = self.system                  # a two-way problem's one-way stages
         if self.two_way:

@@ -121,6 +121,11 @@ class CoupledSettings:
     quasi_newton: bool = option(True, doc="monolithic: keep the shape derivatives (F_x, S_x) of the "
                                           "first iterate for the rest of the Newton solve (the "
                                           "adjoint gets the exact ones of the converged state)")
+    linear_solver: str = option("block", choices=("block", "direct"),
+                                doc="monolithic: the Newton's linear solver -- block: GMRES preconditioned "
+                                    "by block Gauss-Seidel over the fields' own factorizations (flow, "
+                                    "structure, mesh); direct: the LU of the whole coupled Jacobian. Both "
+                                    "converge to the same solution; block is faster, direct the fallback")
 
 
 def objective_names() -> tuple[str, ...]:

@@ -4,6 +4,8 @@
   (:mod:`tofsi.linalg.backends`: ``superlu`` always, ``pardiso`` and ``petsc``
   when installed, ``auto`` the fastest), the pattern analysed once;
 * :class:`AMGSolver` -- smoothed-aggregation AMG with CG for SPD systems;
+* :class:`BlockGaussSeidel` -- a field-block matrix preconditioned by its block lower
+  triangle, the fields' own factorizations (coupled Jacobians);
 * :class:`RecyclingSolver` -- a sequence of slowly changing systems, solved by
   Krylov iterations preconditioned with an earlier factorization or AMG hierarchy;
 * :func:`nested_dissection` -- the grid ordering that keeps LU fill low.
@@ -12,12 +14,13 @@
 from __future__ import annotations
 
 from tofsi.linalg.amg import AMGSolver, rigid_body_modes
+from tofsi.linalg.block_gauss_seidel import BlockGaussSeidel
 from tofsi.linalg.backends import available, get_backend, set_default
 from tofsi.linalg.direct import DirectSolver
 from tofsi.linalg.ordering import nested_dissection
 from tofsi.linalg.recycling import RecyclingSolver
 
-__all__ = ["AMGSolver", "DirectSolver", "RecyclingSolver", "available", "get_backend", "make_solver",
+__all__ = ["AMGSolver", "BlockGaussSeidel", "DirectSolver", "RecyclingSolver", "available", "get_backend", "make_solver",
            "nested_dissection", "rigid_body_modes", "set_default"]
 
 

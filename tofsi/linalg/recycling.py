@@ -27,10 +27,12 @@ class RecyclingSolver:
       stale). Newton tangents of consecutive iterations and increments differ
       little, so most solves cost a few triangular solves instead of a
       factorization.
-    * iterative (an AMG hierarchy, ``exact = False``): every solve is a Krylov
-      solve (CG for symmetric systems, else GMRES) preconditioned by one cycle
-      of the last hierarchy. The first solve after a new hierarchy measures its
-      cost ``c``, iterations per decade of residual reduction. A new hierarchy
+    * iterative (an AMG hierarchy, or a :class:`~tofsi.linalg.BlockGaussSeidel`
+      sweep over a coupled matrix's own blocks; ``exact = False``): every solve
+      is a Krylov solve (CG for symmetric systems, else GMRES) preconditioned
+      by one cycle (or sweep) of the last one. The first solve after a new
+      one measures its cost ``c``, iterations per decade of residual
+      reduction. A new one
       costs about ``s = solver.setup_iterations`` iterations to build, so a
       later solve over ``d`` decades that needed more than ``c d + s``
       iterations marks the hierarchy stale (the next matrix gets a new one),
@@ -54,7 +56,7 @@ class RecyclingSolver:
 
     def refresh(self, A) -> None:
         self.solver = None                 # release the old factors (and their backend slot) first
-        log.info("new factorization of %d unknowns", A.shape[0])
+        log.info("new factorization (or hierarchy) of %d unknowns", A.shape[0])
         self.solver = self.factorize(A)
         self.stale = False
         self.fresh_cost = None
@@ -132,7 +134,7 @@ class RecyclingSolver:
             return self.solver.solve(b) if rtol is None else self.solver.solve(b, max(rtol, self.rtol))
         x, ok = self._krylov(A, b, guess, rtol)
         if not ok:
-            raise NumericalError("AMG-preconditioned Krylov solve did not converge",
+            raise NumericalError("preconditioned Krylov solve did not converge",
                                  {"size": A.shape[0], "rtol": rtol or self.rtol})
         return x
 

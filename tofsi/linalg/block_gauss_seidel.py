@@ -1,0 +1,124 @@
+"""Block Gauss-Seidel over the fields' own factorizations: a preconditioner for coupled Jacobians.
+
+A coupled Jacobian in field blocks (two-way FSI: flow ``w``, structure ``u``,
+mesh ``x``)
+
+    A = | A_ww  A_wu  A_wx |          M^{-1} r = z, one forward sweep:
+        | A_uw  A_uu  A_ux |              z_i = A_ii^{-1} (r_i - sum_{j<i} A_ij z_j)
+        | A_xw  A_xu  A_xx |
+
+is preconditioned by its block lower triangle ``M`` (the diagonal blocks
+factorized separately, each with its field's fill-reducing ordering). The
+fields' own systems are much cheaper to factorize than the monolithic one:
+the couplings ``A_wx`` (the flow's shape derivative) and ``A_uw`` (the fluid
+load) add fill that the separate factors never see (at 3200 elements of the
+headline scene, 6.7 M factor entries against 13.4 M, and a quarter of the
+time). GMRES on ``A`` with ``M`` converges in the number of iterations the
+coupling's strength asks (8 to 1e-10 there); the solution is that of ``A``,
+to the Krylov tolerance.
+
+``A^T x = b`` (adjoints) is preconditioned by the same factors: ``M^T`` is
+block upper triangular, so its sweep runs backwards over the fields with the
+transposed diagonal solves and the transposed lower blocks of ``A``.
+
+The class has the interface of :class:`tofsi.linalg.AMGSolver` (``exact =
+False``, :meth:`preconditioner`, :meth:`solve`, :meth:`solve_transpose`), so
+a :class:`tofsi.linalg.RecyclingSolver` keeps it for a sequence of nearby
+Jacobians (Newton iterates) until it goes stale.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pyamg.krylov
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from tofsi.errors import NumericalError
+from tofsi.linalg.direct import DirectSolver
+
+log = logging.getLogger(__name__)
+
+
+class BlockGaussSeidel:
+    """Block lower-triangular preconditioner of a field-block matrix, and GMRES with it.
+
+    A : the square matrix, unknowns stacked field after field
+    sizes : the fields' sizes, in the order of ``A``'s unknowns (and of the sweep)
+    orderings : per field, a fill-reducing permutation of its unknowns (or None)
+    """
+
+    exact = False
+    symmetric = False
+    setup_iterations = 10      # factorizing the diagonal blocks costs about 10 GMRES iterations
+
+    def __init__(self, A: sp.spmatrix, sizes, orderings=None, tol: float = 1e-10, max_iter: int = 200):
+        A = sp.csr_matrix(A)
+        self.A, self.tol, self.max_iter, self.shape = A, tol, max_iter, A.shape
+        self.starts = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        if self.starts[-1] != A.shape[0] or A.shape[0] != A.shape[1]:
+            raise ValueError(f"block sizes {list(sizes)} do not make up the {A.shape} matrix")
+        orderings = orderings or [None] * len(sizes)
+        self.diagonal, self.lower, self.lower_t = [], [], []
+        for i, (a, b) in enumerate(zip(self.starts[:-1], self.starts[1:])):
+            rows = A[a:b]
+            self.diagonal.append(DirectSolver(rows[:, a:b], perm=orderings[i]))
+            self.lower.append(rows[:, :a].tocsr())                     # A_ij, j < i
+            self.lower_t.append(A[b:, a:b].T.tocsr())                  # (A_ji)^T, j > i: M^T's upper part
+        self.memory_bytes = sum(d.memory_bytes for d in self.diagonal)
+        self._solve = [d.preconditioner(False) for d in self.diagonal]      # triangular solves only
+        self._solve_t = [d.preconditioner(True) for d in self.diagonal]
+
+    def _sweep(self, r: np.ndarray) -> np.ndarray:
+        """``M^{-1} r``: forward block substitution."""
+        z = np.empty_like(r)
+        for i, (a, b) in enumerate(zip(self.starts[:-1], self.starts[1:])):
+            rhs = r[a:b] - self.lower[i] @ z[:a] if a else r[a:b]
+            z[a:b] = self._solve[i](rhs)
+        return z
+
+    def _sweep_transpose(self, r: np.ndarray) -> np.ndarray:
+        """``M^{-T} r``: backward block substitution with the transposed blocks."""
+        z = np.empty_like(r)
+        n = self.starts[-1]
+        for i in reversed(range(len(self._solve))):
+            a, b = self.starts[i], self.starts[i + 1]
+            rhs = r[a:b] - self.lower_t[i] @ z[b:] if b < n else r[a:b]
+            z[a:b] = self._solve_t[i](rhs)
+        return z
+
+    def preconditioner(self, transpose: bool = False):
+        """``b -> M^{-1} b`` (or ``M^{-T} b``), for GMRES on this or a nearby matrix."""
+        return self._sweep_transpose if transpose else self._sweep
+
+    def _gmres(self, A, b: np.ndarray, apply) -> np.ndarray:
+        n = A.shape[0]
+        residuals: list[float] = []
+        M = spla.LinearOperator((n, n), matvec=apply, dtype=np.float64)
+        x, _ = pyamg.krylov.fgmres(A, b, tol=self.tol, restart=min(50, self.max_iter),
+                                   maxiter=max(1, -(-self.max_iter // 50)), M=M, residuals=residuals)
+        bnorm = float(np.linalg.norm(b))
+        log.info("block-Gauss-Seidel GMRES: %d iterations, residual %.2e relative to |b|",
+                 len(residuals) - 1, residuals[-1] / max(bnorm, 1e-300))
+        if not np.all(np.isfinite(x)) or residuals[-1] > 10 * self.tol * bnorm:
+            raise NumericalError("block-Gauss-Seidel GMRES did not converge",
+                                 {"residual_history": residuals[-20:], "size": n})
+        return x
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """``A^-1 b`` by GMRES to ``tol``; the LU of the whole of ``A`` when GMRES fails."""
+        try:
+            return self._gmres(self.A, b, self._sweep)
+        except NumericalError as err:
+            log.warning("%s; factorizing the whole matrix instead", err)
+            return DirectSolver(self.A).solve(b)
+
+    def solve_transpose(self, b: np.ndarray) -> np.ndarray:
+        """``A^-T b``, as :meth:`solve`."""
+        try:
+            return self._gmres(self.A.T.tocsr(), b, self._sweep_transpose)
+        except NumericalError as err:
+            log.warning("%s; factorizing the whole matrix instead", err)
+            return DirectSolver(self.A).solve_transpose(b)
