@@ -99,6 +99,7 @@ class Flow:
         self._perm = None
         self._shape_kept = None           # (key, (R_e, dR_e/dXe)) of the last shape evaluation
         self._elements_kept = None        # (key, (R_e, K_e)) of the last Jacobian evaluation
+        self._residuals_kept = None       # (key, R_e) of the last residual-only evaluation
         self._shape_pattern = None        # CSR pattern of F_x
 
     # ---- geometry and state -------------------------------------------------------
@@ -142,20 +143,37 @@ class Flow:
 
     def residual(self, w, x=None, rho=None, density=None, params=None) -> np.ndarray:
         """``F(w; x, rho)`` (size,), unconstrained (boundary rows included)."""
-        Re, _ = self.element_residual(w, x, rho, jacobian=False, density=density, params=params)
-        return assemble_vector(self.dofs, Re, self.size)
+        return assemble_vector(self.dofs, self.element_residuals(w, x, rho, params, density), self.size)
+
+    def _inputs(self, w, x, rho, params, density):
+        """``(rho, density, key)``: the defaults filled in, and the key of every input of an
+        element evaluation on the mesh moved by ``x``."""
+        rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        density = self.density if density is None else density
+        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(),
+               params, density, self.symmetric, self.settings, self.body_force)
+        return rho, density, key
 
     def element_jacobians(self, w, x=None, rho=None, params=None, density=None):
         """``(R_e (E, 22), K_e (E, 22, 22))`` on the mesh moved by ``x`` (``density`` defaults to
         the flow's). The last evaluation is kept, keyed by every input: the fluid load's ``S_w``
         at a converged state reuses the Jacobian of the Newton solve's last residual check."""
-        rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
-        density = self.density if density is None else density
-        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(),
-               params, density, self.symmetric, self.settings, self.body_force)
+        rho, density, key = self._inputs(w, x, rho, params, density)
         if self._elements_kept is None or self._elements_kept[0] != key:
             self._elements_kept = (key, self.element_residual(w, x, rho, density=density, params=params))
         return self._elements_kept[1]
+
+    def element_residuals(self, w, x=None, rho=None, params=None, density=None) -> np.ndarray:
+        """``R_e (E, 22)`` on the mesh moved by ``x``: the kept Jacobian evaluation's when its
+        inputs are these, else a residual-only evaluation, itself kept (keyed by every input), so
+        a line-search trial's flow residual and the fluid load at the same state share one."""
+        rho, density, key = self._inputs(w, x, rho, params, density)
+        if self._elements_kept is not None and self._elements_kept[0] == key:
+            return self._elements_kept[1][0]
+        if self._residuals_kept is None or self._residuals_kept[0] != key:
+            Re, _ = self.element_residual(w, x, rho, jacobian=False, density=density, params=params)
+            self._residuals_kept = (key, Re)
+        return self._residuals_kept[1]
 
     def jacobian(self, w, x=None, rho=None, density=None, params=None):
         """``F_w`` as the constrained CSR matrix (identity on fixed dofs), ``F`` and the

@@ -133,8 +133,9 @@ class FluidForce:
         return self._operators[1]
 
     def _reaction(self, w, x, rho, params, Xe, partials: bool):
-        """Element loads ``(E, 8)`` of the reaction form on the mesh moved by ``x`` (or on corners
-        ``Xe``, complex-safe), and with ``partials`` ``df/dw_e (E, 8, 22)`` and ``df/drho_e (E, 8)``."""
+        """Element loads ``(E, 8)`` of the reaction form on the mesh moved by ``x`` (corners ``Xe``),
+        and with ``partials`` ``df/dw_e (E, 8, 22)`` and ``df/drho_e (E, 8)``; the flow's element
+        residuals (and Jacobians) are its kept evaluations at the same inputs."""
         fl = self.flow
         E = Xe.shape[0]
         brinkman = fl.brinkman(params)
@@ -142,8 +143,8 @@ class FluidForce:
         psi = self.weight(rho, params)
         if partials:                                    # the flow's kept element Jacobians
             Re, Ke = fl.element_jacobians(w, x, rho, params)
-        else:
-            Re, Ke = fl.element_residual(w, None, rho, jacobian=partials, Xe=Xe, params=params)
+        else:                                           # or its kept element residuals
+            Re = fl.element_residuals(w, x, rho, params)
         we = w[fl.dofs]
         unit = brinkman_partial(Xe, we[:, :18].reshape(E, 9, 2))[:, :18]      # int N_b v_i (E, 18)
         stress = Re[:, :18] - alpha[:, None] * unit                            # R_e without friction
