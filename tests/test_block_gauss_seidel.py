@@ -1,5 +1,6 @@
 """Block Gauss-Seidel preconditioning of coupled Jacobians (tofsi.linalg.BlockGaussSeidel)."""
 
+import functools
 import logging
 
 import numpy as np
@@ -91,3 +92,28 @@ def test_two_way_block_and_direct_newton_solves_agree_and_take_the_same_newton_s
         assert np.abs(getattr(a, f) - ref).max() <= 1e-8 * np.abs(ref).max()
     na, nb = (len(s.reports["coupling"]["history"]) for s in (a, b))
     assert abs(na - nb) <= 1, (na, nb)
+
+
+def test_a_newton_whose_block_gmres_fails_falls_back_to_the_whole_jacobians_lu(monkeypatch, caplog):
+    """A block preconditioner that does nothing, GMRES allowed one iteration: the Newton's first
+    step fails, the Newton factorizes the whole Jacobian instead, says so, and lands on the
+    same state."""
+    import tofsi.block_system as block_system
+
+    class Useless(BlockGaussSeidel):
+        setup_iterations = 0
+
+        def preconditioner(self, transpose=False):
+            return np.copy
+
+    model, rho = soft_model("monolithic", "coupled.linear_solver=direct")
+    reference = model.solve(rho)
+    monkeypatch.setattr(block_system, "BlockGaussSeidel", functools.partial(Useless, max_iter=1))
+    model, rho = soft_model("monolithic")
+    with caplog.at_level(logging.WARNING):
+        state = model.solve(rho)
+    assert "factorizing the whole Jacobian instead" in caplog.text
+    assert any(h.get("fallback") == "direct" for h in state.reports["coupling"]["history"])
+    for f in ("u", "x", "w"):
+        ref = getattr(reference, f)
+        assert np.abs(getattr(state, f) - ref).max() <= 1e-8 * np.abs(ref).max()
