@@ -46,6 +46,7 @@ from tofsi.blocks import Continuation, FieldBlock, Linearization, State
 from tofsi.errors import InputError, NumericalError
 from tofsi.iteration import aitken, backtracking, forcing_term
 from tofsi.linalg import BlockGaussSeidel, DirectSolver, RecyclingSolver, nested_dissection
+from tofsi.linalg.backends import canonical_csr
 
 log = logging.getLogger(__name__)
 
@@ -173,9 +174,12 @@ class BlockSystem:
         rows = []
         for a in names:
             lin = lins[a]
-            rows.append([lin.matrix() if b == a else kept[(a, b)] if (a, b) in kept else
-                         (lin.coupling(b) if b in self.by_name[a].inputs else None) for b in names])
-        return sp.bmat(rows, format="csr")
+            blocks = [lin.matrix() if b == a else kept[(a, b)] if (a, b) in kept else
+                      (lin.coupling(b) if b in self.by_name[a].inputs else None) for b in names]
+            rows.append(sp.hstack([canonical_csr(B) if B is not None else      # CSR fast paths:
+                                   sp.csr_matrix((self.by_name[a].size, self.by_name[b].size))
+                                   for B, b in zip(blocks, names)], format="csr"))
+        return sp.vstack(rows, format="csr")                    # no COO round trip, unlike bmat
 
     def ordering(self, names) -> np.ndarray | None:
         """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid);
