@@ -241,8 +241,9 @@ class Mover(ABC):
         c = node_scale(self.reference_matrices(problem), problem.dofs, problem.n_nodes)
         return Blend.build(np.asarray(problem.blend, float), c, problem.bc.is_fixed)
 
-    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None):
-        """``D(x)`` (2n,) and its true Jacobian ``D_x`` (CSR).
+    def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None,
+                 jacobian: bool = True):
+        """``D(x)`` (2n,) and its true Jacobian ``D_x`` (CSR; None without ``jacobian``).
 
         Free rows ``W R(x) + S_c (x - target)`` (``W = 1``, ``S_c = 0`` without a
         blend), fixed rows ``x - target``; ``D_x`` keeps the free rows' fixed
@@ -252,13 +253,15 @@ class Mover(ABC):
         blend = self.blend(problem) if blend is None else blend
         x = np.asarray(x, float).reshape(-1)
         target = np.asarray(target, float).reshape(-1)
-        Re, Ke = self.element_residual(problem, x, problem.stiffening)
+        Re, Ke = self.element_residual(problem, x, problem.stiffening, tangent=jacobian)
         bc, dofs = problem.bc, problem.dofs
         r = assemble_vector(dofs, Re, x.size)
         if blend is not None:
             r = blend.residual(r, x, target)
         r = bc.homogenize(r)
         r[bc.fixed] = (x - target)[bc.fixed]
+        if not jacobian:
+            return r, None
         K = bc.row_matrix(Ke).tocsr() if blend is None else blend.row_matrix(bc, Ke, dofs)
         return r, K
 

@@ -341,7 +341,7 @@ class MotionField(FieldBlock):
 
     def residual(self, fields, rho, params):
         if self.has_residual:
-            return self.motion.residual(fields["x"], fields["u"], rho)[0]
+            return self.motion.residual(fields["x"], fields["u"], rho, jacobian=False)[0]
         return fields["x"] - self.motion.move(fields["u"], rho).displacement.ravel()
 
     def linearize(self, fields, rho, params):

@@ -77,6 +77,7 @@ class MeshMotion:
             self.follows = np.setdiff1d(self.follows, self.band.outside_nodes)
         self.moving = moving
         self.base = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
+        self._kept = None                         # (rho key, problem, blend) of the last densities
 
     @property
     def path_dependent(self) -> bool:
@@ -91,12 +92,22 @@ class MeshMotion:
     # ---- maps between fields ------------------------------------------------------
     def problem(self, rho=None) -> MotionProblem:
         """The mover's problem for densities ``rho`` (blended form) or the fixed regions."""
-        if not self.blended:
-            return self.base
-        s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
-        if self.density_layers is None:
-            return self.base.with_data(blend=s)
-        return self.base.with_data(blend=s, stiffening=self.density_layers.factors(rho)[self.moving])
+        return self._at_density(rho)[0]
+
+    def _at_density(self, rho):
+        """``(problem, blend)`` for densities ``rho``: the last pair is kept, keyed by ``rho``
+        (everything else they depend on is fixed when the motion is built), so a Newton's
+        residual checks at one design do not rebuild the indicator, the density layers and the
+        blend's reference stiffness each time."""
+        key = None if rho is None or not self.blended else np.asarray(rho, dtype=float).tobytes()
+        if self._kept is None or self._kept[0] != key:
+            problem = self.base
+            if self.blended:
+                s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
+                problem = (self.base.with_data(blend=s) if self.density_layers is None else
+                           self.base.with_data(blend=s, stiffening=self.density_layers.factors(rho)[self.moving]))
+            self._kept = (key, problem, self.mover.blend(problem))
+        return self._kept[1], self._kept[2]
 
     def target(self, u: np.ndarray) -> np.ndarray:
         """The motion the mover is given ``(n, 2)``: the structure's where nodes follow it, else 0."""
@@ -140,18 +151,18 @@ class MeshMotion:
         t_bar, f_bar, s_bar = self.mover.vjp(result.problem, result, x_bar)
         return self.target_transpose(t_bar), self.density_transpose(rho, s_bar, f_bar)
 
-    def residual(self, x, u, rho=None):
-        """``D (2n,)`` and ``D_x`` (true Jacobian) for residual movers."""
-        return self.mover.residual(self.problem(rho), x, self.target(u))
+    def residual(self, x, u, rho=None, jacobian: bool = True):
+        """``D (2n,)`` and ``D_x`` (true Jacobian; None without ``jacobian``) for residual movers."""
+        problem, blend = self._at_density(rho)
+        return self.mover.residual(problem, x, self.target(u), blend=blend, jacobian=jacobian)
 
     def structure_partial(self, rho=None) -> sp.csr_matrix:
         """``D_u`` (2n x 2n): ``-(P_p + S_c)`` restricted to the nodes that follow the structure."""
-        problem = self.problem(rho)
+        problem, blend = self._at_density(rho)
         diag = np.zeros(2 * self.mesh.n_nodes)
         follow_dofs = np.ravel(2 * self.follows[:, None] + np.arange(2))
         fixed = problem.bc.is_fixed
         diag[follow_dofs[fixed[follow_dofs]]] = -1.0
-        blend = self.mover.blend(problem)
         if blend is not None:
             free = follow_dofs[~fixed[follow_dofs]]
             diag[free] = -blend.diag[free]
@@ -159,10 +170,12 @@ class MeshMotion:
 
     def partials_transpose(self, x, u, rho, lam):
         """``lam^T D_u`` (2n,) and ``lam^T D_rho`` (E,) for residual movers (no solve)."""
-        t_bar, f_bar, s_bar = self.mover.residual_partials(self.problem(rho), x, self.target(u), lam)
+        problem, blend = self._at_density(rho)
+        t_bar, f_bar, s_bar = self.mover.residual_partials(problem, x, self.target(u), lam, blend=blend)
         return self.target_transpose(t_bar), self.density_transpose(rho, s_bar, f_bar)
 
     def transposed_solve(self, x, rho, rhs, solver=None) -> np.ndarray:
         """``D_x^-T rhs`` at ``x`` (residual movers); ``solver`` from the forward move."""
-        lam, lam_p = self.mover.transposed_solve(self.problem(rho), x, rhs, solver)
+        problem, blend = self._at_density(rho)
+        lam, lam_p = self.mover.transposed_solve(problem, x, rhs, solver, blend=blend)
         return lam + lam_p
