@@ -109,6 +109,7 @@ class FluidForce:
         self.free = (~flow.bc.is_fixed[flow.dofs[:, :18]]).astype(float)       # (E, 18)
         self._operators = None            # (x bytes, B) of the stress-divergence form
         self._last = None                 # (key, element values) of the last evaluation
+        self._shape_last = None           # (key, df_e/dXe) of the last shape evaluation
         self._fluid_pattern = None        # CSR patterns of df/dw and df/dx (made on first use)
         self._shape_pattern = None
 
@@ -212,10 +213,18 @@ class FluidForce:
 
         Reaction form: ``d rows_e = free ((alpha - alpha_min - psi alpha) d(A_e w_e) + psi dR_e)``
         with the flow's ``dR_e/dXe`` (:meth:`~tofsi.physics.flow.Flow.shape_elements`, shared
-        with ``F_x``); stress-divergence form: ``psi_e d(B_e w_e)``.
+        with ``F_x``); stress-divergence form: ``psi_e d(B_e w_e)``. The last evaluation is
+        kept, keyed by every input (``S_x`` and its transposed product at one state share it).
         """
         fl = self.flow
         rho = np.zeros(fl.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(), params)
+        if self._shape_last is None or self._shape_last[0] != key:
+            self._shape_last = (key, self._shape_elements(w, x, rho, params))
+        return self._shape_last[1]
+
+    def _shape_elements(self, w, x, rho, params):
+        fl = self.flow
         psi = self.weight(rho, params)
         ve, pe = fl.split(w)
         Xe = fl.corners(x)
