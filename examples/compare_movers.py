@@ -4,7 +4,7 @@ Runs ``optimize_fsi.py`` three times -- Yeoh hyperelastic, linear elasticity
 (Jacobian-stiffened) and the spring analogy -- and tabulates, for each, the
 final design's compliance (two-way), the smallest element skewness of the
 moved mesh over the whole run, and the wall time; the designs and their
-convergence plots are side by side in the output folder. About five minutes
+convergence plots are side by side in the output folder. About four minutes
 on two cores:
 
     python examples/compare_movers.py [--output results/compare_movers]

@@ -8,7 +8,7 @@ on the moved mesh. The gradient comes from the block adjoint of the coupled
 flow-structure-mesh system. The continuation starts one-way (it finds the
 topology at one-way cost from the uniform design) and ends two-way (it
 designs against the deforming flow); every two-way iteration records the
-quality of the moved mesh. About two minutes on two cores:
+quality of the moved mesh. About a minute and a half on two cores:
 
     python examples/optimize_fsi.py [--output results/beam_in_channel_optimization_fsi]
     python examples/optimize_fsi.py --set mover.name=spring     # or linear, yeoh
