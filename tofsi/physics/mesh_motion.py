@@ -77,7 +77,7 @@ class MeshMotion:
             self.follows = np.setdiff1d(self.follows, self.band.outside_nodes)
         self.moving = moving
         self.base = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
-        self._kept = None                         # (rho key, problem, blend) of the last densities
+        self._kept = None                         # (rho key, {problem, blend}) of the last densities
 
     @property
     def path_dependent(self) -> bool:
@@ -92,13 +92,20 @@ class MeshMotion:
     # ---- maps between fields ------------------------------------------------------
     def problem(self, rho=None) -> MotionProblem:
         """The mover's problem for densities ``rho`` (blended form) or the fixed regions."""
-        return self._at_density(rho)[0]
+        return self._kept_for(rho)["problem"]
 
     def _at_density(self, rho):
-        """``(problem, blend)`` for densities ``rho``: the last pair is kept, keyed by ``rho``
-        (everything else they depend on is fixed when the motion is built), so a Newton's
-        residual checks at one design do not rebuild the indicator, the density layers and the
-        blend's reference stiffness each time."""
+        """``(problem, blend)`` for densities ``rho``, for the residual-form maps."""
+        kept = self._kept_for(rho)
+        if "blend" not in kept:
+            kept["blend"] = self.mover.blend(kept["problem"])
+        return kept["problem"], kept["blend"]
+
+    def _kept_for(self, rho) -> dict:
+        """What depends on the densities alone: the problem (and, once asked for, its blend).
+        The last densities' are kept, keyed by ``rho`` (everything else they depend on is fixed
+        when the motion is built), so a Newton's residual checks at one design do not rebuild
+        the indicator, the density layers and the blend's reference stiffness each time."""
         key = None if rho is None or not self.blended else np.asarray(rho, dtype=float).tobytes()
         if self._kept is None or self._kept[0] != key:
             problem = self.base
@@ -106,8 +113,8 @@ class MeshMotion:
                 s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
                 problem = (self.base.with_data(blend=s) if self.density_layers is None else
                            self.base.with_data(blend=s, stiffening=self.density_layers.factors(rho)[self.moving]))
-            self._kept = (key, problem, self.mover.blend(problem))
-        return self._kept[1], self._kept[2]
+            self._kept = (key, {"problem": problem})
+        return self._kept[1]
 
     def target(self, u: np.ndarray) -> np.ndarray:
         """The motion the mover is given ``(n, 2)``: the structure's where nodes follow it, else 0."""
