@@ -15,6 +15,20 @@ log = logging.getLogger(__name__)
 GMRES_RESTART = 50          # restart length of GMRES preconditioned by an AMG cycle
 
 
+def flexible_gmres(A, b: np.ndarray, apply, goal: float, max_iter: int, restart: int, x0=None):
+    """Right-preconditioned (flexible) GMRES on ``A x = b`` with the preconditioner ``apply``,
+    to the absolute residual ``goal``: it minimizes the true residual ``|b - A x|`` and keeps
+    the preconditioned basis, so the update needs no extra preconditioner application;
+    ``(x, iterations)``."""
+    n = A.shape[0]
+    M = spla.LinearOperator((n, n), matvec=apply, dtype=np.result_type(A.dtype, b.dtype))
+    residuals: list[float] = []
+    bnorm = float(np.linalg.norm(b))
+    x, _ = pyamg.krylov.fgmres(A, b, x0=x0, tol=goal / bnorm, restart=min(restart, max_iter),
+                               maxiter=max(1, -(-max_iter // restart)), M=M, residuals=residuals)
+    return x, len(residuals) - 1
+
+
 class RecyclingSolver:
     """Solve a sequence of slowly changing systems ``A_k x = b`` cheaply.
 
@@ -65,18 +79,6 @@ class RecyclingSolver:
     def _usable(self, A) -> bool:
         return self.solver is not None and not self.stale and self.solver.shape == A.shape
 
-    def _gmres(self, A, b, apply, x0, goal: float, max_iter: int, restart: int):
-        """Right-preconditioned (flexible) GMRES: minimizes the true residual ``|b - A x|`` and
-        keeps the preconditioned basis, so the update needs no extra preconditioner
-        application; (x, iterations)."""
-        n = A.shape[0]
-        M = spla.LinearOperator((n, n), matvec=apply, dtype=np.result_type(A.dtype, b.dtype))
-        residuals: list[float] = []
-        bnorm = float(np.linalg.norm(b))
-        x, _ = pyamg.krylov.fgmres(A, b, x0=x0, tol=goal / bnorm, restart=min(restart, max_iter),
-                                   maxiter=max(1, -(-max_iter // restart)), M=M, residuals=residuals)
-        return x, len(residuals) - 1
-
     def _cg(self, A, b, apply, x0, goal: float, max_iter: int):
         """Preconditioned CG (symmetric positive definite ``A`` and preconditioner); (x, iterations)."""
         n = A.shape[0]
@@ -96,7 +98,7 @@ class RecyclingSolver:
             return (np.zeros_like(b) if x0 is None else x0), True
         apply = self.solver.preconditioner(transpose)
         if self.solver.exact:
-            x, its = self._gmres(A, b, apply, x0, goal, self.max_iter, self.max_iter)
+            x, its = flexible_gmres(A, b, apply, goal, self.max_iter, self.max_iter, x0)
             self.stale = its > self.refresh_after
         else:
             setup = self.solver.setup_iterations
@@ -105,7 +107,7 @@ class RecyclingSolver:
             if self.solver.symmetric:
                 x, its = self._cg(A, b, apply, x0, goal, cap)
             else:
-                x, its = self._gmres(A, b, apply, x0, goal, cap, GMRES_RESTART)
+                x, its = flexible_gmres(A, b, apply, goal, cap, GMRES_RESTART, x0)
         self.krylov_iterations += its
         residual = float(np.linalg.norm(b - A @ x))
         ok = bool(np.all(np.isfinite(x))) and residual <= 1.01 * goal

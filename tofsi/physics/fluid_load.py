@@ -163,13 +163,18 @@ class FluidForce:
         drho = brinkman.derivative(rho)[:, None] * dalpha + self.weight_derivative(rho, params)[:, None] * dpsi
         return fe, dw, drho
 
+    def _inputs(self, w, x, rho, params):
+        """``(rho, key)``: the densities (None: all fluid) and the key of every input of an
+        element evaluation (the form and the flow are fixed when the load is built)."""
+        rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        return rho, (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(), params)
+
     def elements(self, w, x, rho, params=None, partials: bool = False):
         """``(f_e (E, 8), df_e/dw_e (E, 8, 22) or None, df_e/drho_e (E, 8) or None)`` at ``(w, x, rho)``.
 
         The last evaluation is kept, keyed by every input (``w``, ``x``, ``rho``, ``params``).
         """
-        rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
-        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(), params)
+        rho, key = self._inputs(w, x, rho, params)
         if self._last is not None and self._last[0] == key and (self._last[1][1] is not None or not partials):
             return self._last[1]
         if self.form == "reaction":
@@ -216,9 +221,7 @@ class FluidForce:
         with ``F_x``); stress-divergence form: ``psi_e d(B_e w_e)``. The last evaluation is
         kept, keyed by every input (``S_x`` and its transposed product at one state share it).
         """
-        fl = self.flow
-        rho = np.zeros(fl.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
-        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(), params)
+        rho, key = self._inputs(w, x, rho, params)
         if self._shape_last is None or self._shape_last[0] != key:
             self._shape_last = (key, self._shape_elements(w, x, rho, params))
         return self._shape_last[1]
