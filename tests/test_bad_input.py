@@ -172,3 +172,251 @@ def test_json_errors_on_stdout(args, tmp_path):
     assert run.returncode == 2
     payload = json.loads(run.stdout)
     assert payload["exit_status"] == 2 and payload["error"] in run.stderr
+
+
+# ---- issue 25: results that survive a full disk -------------------------------------------------
+TINY_OPT = ["--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1", "--set", "design.filter_radius=0.15",
+            "--set", "design.stage_iterations=2"]
+
+
+@pytest.fixture
+def small_filesystem(tmp_path):
+    """``make(kb)``: a tmpfs of ``kb`` KB under tmp_path (skipped where mounting is not allowed)."""
+    mounted = []
+
+    def make(kb):
+        where = tmp_path / f"fs{len(mounted)}"
+        where.mkdir()
+        run = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={kb}k", "tmpfs", str(where)],
+                             capture_output=True, text=True)
+        if run.returncode != 0:
+            pytest.skip(f"cannot mount a small tmpfs here ({(run.stderr or 'mount failed').strip()}); "
+                        "the file-size limit tests cover the same path")
+        mounted.append(where)
+        return where
+    yield make
+    for where in mounted:
+        subprocess.run(["umount", str(where)], capture_output=True)
+
+
+def limited(args, cwd, max_bytes):
+    """``tofsi ARGS`` with files limited to ``max_bytes`` (ulimit -f): writes beyond it fail
+    with EFBIG (Python ignores SIGXFSZ)."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (max_bytes, max_bytes))
+    return subprocess.run([sys.executable, "-m", "tofsi.cli", *args], capture_output=True, text=True,
+                          cwd=cwd, preexec_fn=limit)
+
+
+def assert_write_failure(run, folder, failed_name):
+    """Exit 4 in one line naming the file, the reason and what was kept; run.json says so and
+    lists exactly the complete files kept."""
+    import json
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 4, run.stderr
+    assert "Traceback" not in run.stderr and lines[-1].startswith("tofsi: write failure: could not write")
+    line = lines[-1]
+    assert failed_name in line and "kept" in line and "run.json records the failure" in line
+    record = json.loads((folder / "run.json").read_text())
+    assert record["exit_status"] == 4 and record["status"] == "write failure"
+    assert failed_name in record["write_failure"]["file"] and record["write_failure"]["error"]
+    names = sorted(n for n in os.listdir(folder) if not n.startswith("."))
+    assert sorted(record["files"]) == names and all(n in line for n in names)
+    assert not any(n.startswith(".") for n in os.listdir(folder))      # no temporary file, no reserve
+    return record
+
+
+def test_a_full_disk_is_refused_before_computing(small_filesystem, tmp_path):
+    """Issue 25: solve into a 200 KB file system computed, then died with OSError 28. The
+    estimate (1 MB for 3200 elements) refuses it before any solve, in one line."""
+    fs = small_filesystem(200)
+    run = tofsi(["solve", OPT, "--output", str(fs / "out")], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr          # no "solving ..." line
+    assert "--output" in lines[0] and "free" in lines[0] and "MB" in lines[0]
+    assert os.listdir(fs) == []
+
+
+def test_a_disk_that_fills_during_the_run_ends_in_one_line_and_keeps_the_complete_files(small_filesystem,
+                                                                                         tmp_path):
+    """200 KB hold solution.vtu (55 KB) but not its pictures (120 KB each): exit 4 naming the
+    picture; solution.vtu is complete (meshio reads it) and run.json records the failure."""
+    import meshio
+    fs = small_filesystem(200)
+    run = tofsi(["solve", OPT, "--output", str(fs / "out"), *TINY_OPT], tmp_path)
+    assert_write_failure(run, fs / "out", "solution_")
+    assert "No space left on device" in run.stderr
+    assert meshio.read(fs / "out" / "solution.vtu").cells[0].data.shape[1] == 9
+
+
+def test_a_file_size_limit_below_the_largest_file_is_refused_before_computing(tmp_path):
+    """ulimit -f 8: OSError 27 after the solve; now exit 2 naming the limit."""
+    run = limited(["solve", OPT, "--output", "out"], tmp_path, 8 * 1024)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "ulimit -f" in lines[0] and "solution.vtu" in lines[0] and os.listdir(tmp_path) == []
+
+
+def test_a_file_size_limit_hit_during_an_optimization_keeps_the_iterations_done(tmp_path):
+    """An 80 KB limit passes the estimate (pictures about 0.1 MB, refused below 50 KB) but not
+    the first design picture (about 120 KB): exit 4 naming it; the checkpoint and the history
+    written before it are complete, and --resume continues from them without the limit."""
+    import json
+    import numpy as np
+    run = limited(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3"],
+                  tmp_path, 80 * 1024)
+    assert_write_failure(run, tmp_path / "out", "design_0000.png")
+    assert "File too large" in run.stderr
+    history = json.loads((tmp_path / "out" / "history.json").read_text())
+    assert [h["iteration"] for h in history] == [0]
+    with np.load(tmp_path / "out" / "checkpoint.npz") as npz:
+        assert json.loads(str(npz["meta"]))["history"][0]["objective"] == history[0]["objective"]
+    again = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
+                   "--resume"], tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert len(json.loads((tmp_path / "out" / "history.json").read_text())) == 3
+
+
+def test_a_scene_name_too_long_for_a_folder_is_refused_before_computing(tmp_path):
+    """--set name=<300 characters> with the default results/<name>: OSError 36 after the run."""
+    run = tofsi(["move", FOIL, "--set", "name=" + "a" * 300], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert lines[0].startswith("tofsi: error: name = ") and "300 bytes" in lines[0] and "255" in lines[0]
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("output,says", [("x" * 300 + "/out", "300 bytes"), ("a\nb", "control character"),
+                                         ("/" + "d/" * 2100, "exceed")])
+def test_output_folder_names_the_file_system_cannot_take_are_refused(output, says, tmp_path):
+    run = tofsi(["mesh", FOIL, "--output", output], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "--output" in lines[0] and says in lines[0] and os.listdir(tmp_path) == []
+
+
+# ---- issue 25: one run per folder ---------------------------------------------------------------
+def test_two_runs_started_at_once_into_one_folder_one_is_refused(tmp_path):
+    """Both exited 0 and the first run's results were silently gone. Now one runs, the other
+    exits 2 naming it, and the folder holds the winner's run alone."""
+    import json
+    args = ["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=2", "-q"]
+    runs = [subprocess.Popen([sys.executable, "-m", "tofsi.cli", *args, "--set", f"design.volume_fraction={vf}"],
+                             cwd=tmp_path, stderr=subprocess.PIPE, text=True) for vf in (0.2, 0.3)]
+    results = [(p.wait(), p.stderr.read()) for p in runs]
+    assert sorted(status for status, _ in results) == [0, 2], results
+    winner = [vf for vf, (status, _) in zip((0.2, 0.3), results) if status == 0][0]
+    loser = [err for status, err in results if status == 2][0]
+    assert len(loser.strip().splitlines()) == 1 and "tofsi optimize" in loser
+    record = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert f"design.volume_fraction={winner}" in record["overrides"] and record["exit_status"] == 0
+    assert ".tofsi.lock" not in os.listdir(tmp_path / "out")
+
+
+def wait_for(path, timeout=60.0):
+    import time
+    t0 = time.monotonic()
+    while not path.exists():
+        assert time.monotonic() - t0 < timeout, f"{path} did not appear"
+        time.sleep(0.05)
+
+
+def test_a_second_run_into_a_busy_folder_exits_2_naming_the_first(tmp_path):
+    import json
+    import signal
+    first = subprocess.Popen([sys.executable, "-m", "tofsi.cli", "optimize", OPT, "--output", "out", *TINY_OPT,
+                              "--set", "optimizer.max_iter=40", "-q"], cwd=tmp_path,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for(tmp_path / "out" / ".tofsi.lock")
+        second = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, "--overwrite"], tmp_path)
+        lines = second.stderr.strip().splitlines()
+        assert second.returncode == 2 and len(lines) == 1, second.stderr
+        assert f"in use by tofsi optimize (pid {first.pid} on host" in lines[0]
+    finally:
+        first.send_signal(signal.SIGTERM)
+        status = first.wait()
+    assert status == 143, first.stderr.read()
+    assert not (tmp_path / "out" / ".tofsi.lock").exists()
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["status"] == "terminated"
+
+
+def test_the_lock_of_a_killed_run_is_taken_over(tmp_path):
+    """SIGKILL leaves the lock file; its record lock died with the process, so the next run
+    (here --resume) takes it over and says whose it was."""
+    import signal
+    first = subprocess.Popen([sys.executable, "-m", "tofsi.cli", "optimize", OPT, "--output", "out", *TINY_OPT,
+                              "--set", "optimizer.max_iter=40", "-q"], cwd=tmp_path)
+    wait_for(tmp_path / "out" / "checkpoint.npz")
+    first.send_signal(signal.SIGKILL)
+    first.wait()
+    assert (tmp_path / "out" / ".tofsi.lock").exists()
+    again = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
+                   "--resume"], tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert f"took over the lock of tofsi optimize (pid {first.pid}" in again.stderr
+    assert not (tmp_path / "out" / ".tofsi.lock").exists()
+
+
+def test_one_process_cannot_lock_a_folder_twice(tmp_path):
+    from tofsi.errors import InputError
+    from tofsi.run_folder import RunFolder
+    first = RunFolder(tmp_path / "o", program="a").check()
+    with pytest.raises(InputError, match="in this process"):
+        RunFolder(tmp_path / "o", program="b").check()
+    first.finish(0)
+    RunFolder(tmp_path / "o", program="b").check().finish(0)
+    assert not (tmp_path / "o").exists()                  # nothing written: the folder goes again
+
+
+# ---- issue 25: sweeps and options refused before computing --------------------------------------
+@pytest.mark.parametrize("sweep,says", [("mover.layers[0]=nan:1:0.1", "not a finite number"),
+                                        ("mover.layers[0]=1:inf:1", "not a finite number"),
+                                        ("mover.layers[0]=1:1e9:1", "at most 100000"),
+                                        ("mover.yeoh.A20=1e-300:1e300:*1.0000001", "at most 100000")])
+def test_non_finite_and_oversized_sweeps_are_refused_at_once(sweep, says, tmp_path):
+    """nan gave a traceback; 1:1e9:1 made a 10^9-value array for 40 s before refusing."""
+    import time
+    t0 = time.perf_counter()
+    run = tofsi(["study", FOIL, "--output", "out", "--sweep", sweep], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and "--sweep" in lines[0] and says in lines[0], run.stderr
+    assert time.perf_counter() - t0 < 20 and os.listdir(tmp_path) == []
+
+
+def test_a_grid_of_too_many_points_is_refused_before_it_is_made():
+    from tofsi.errors import InputError
+    from tofsi.study import Sweep, points
+    sweeps = [Sweep(f"k{i}", tuple(range(1000))) for i in range(3)]          # 10^9 points
+    with pytest.raises(InputError, match="1,000,000,000 points"):
+        points(sweeps)
+    assert len(points(sweeps[:1])) == 1000
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
+def test_max_memory_must_be_a_positive_number_of_gb(value, tmp_path):
+    """nan was accepted; -1 was refused naming mesh.h_min."""
+    run = tofsi(["move", FOIL, "--output", "out", "--max-memory", value], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and lines[0].startswith("tofsi: error: --max-memory")
+    assert os.listdir(tmp_path) == []
+
+
+def test_resume_and_overwrite_together_are_refused(tmp_path):
+    run = tofsi(["optimize", OPT, "--output", "out", "--resume", "--overwrite"], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and "--resume" in lines[0] and "--overwrite" in lines[0]
+
+
+@pytest.mark.parametrize("example", ["mesh_motion_study.py", "tuning_band_study.py"])
+def test_the_study_examples_run_without_arguments(example, tmp_path):
+    """They exited 2 asking for a study name; without one they run their small default."""
+    from conftest import SCENES
+    run = subprocess.run([sys.executable, str(SCENES.parent / example)], capture_output=True, text=True,
+                         cwd=tmp_path, env={**os.environ, "TOFSI_EXAMPLE_SMALL": "1"})
+    assert run.returncode == 0, run.stderr
+    made = {"mesh_motion_study.py": "results/mesh_motion_study/graded/triangulation.csv",
+            "tuning_band_study.py": "results/tuning_band_study/band.csv"}[example]
+    assert (tmp_path / made).is_file()

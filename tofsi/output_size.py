@@ -4,8 +4,9 @@ The files of a command and their sizes follow from the mesh's element
 count (its axes only, as :mod:`tofsi.memory` does: milliseconds), with
 sizes per element measured on the shipped scenes at h = 0.1 to 0.025
 (compressed VTU, uncompressed NumPy; ``tests/test_output_size.py`` checks
-the estimate against the files runs write). A picture is about 0.1 MB
-whatever the mesh (measured 0.03 to 0.18 MB).
+the estimate against the files runs write). A picture of fields is about
+0.1 MB whatever the mesh (measured 0.07 to 0.18 MB), the mesh picture and
+the convergence plot 0.03 and 0.045 MB.
 
 A run is refused (:class:`~tofsi.errors.InputError`, exit 2) only when it
 is *clearly* short of room: the free space of the output folder's file
@@ -29,7 +30,8 @@ from tofsi.errors import InputError
 
 MB = 1e6
 CLEARLY_SHORT = 0.5              # refuse below this share of the estimate
-PICTURE = 100e3                  # bytes of a PNG (measured 30e3 .. 180e3)
+PICTURE = 100e3                  # bytes of a PNG of fields (measured 70e3 .. 180e3)
+MESH_PICTURE, PLOT = 30e3, 45e3  # mesh.png, convergence.png (measured 30e3 .. 35e3, 42e3 .. 47e3)
 SMALL = 5e3                      # a JSON or CSV record
 RESERVE = 32e3                   # kept free to record a failure (run.json; see run_folder)
 BYTES_PER_ELEMENT = {            # measured: bytes / element at 200 .. 3200 elements
@@ -75,7 +77,7 @@ def estimate(scene, command: str) -> OutputEstimate:
     per = {k: v * E for k, v in BYTES_PER_ELEMENT.items()}
     files = {"run.json": SMALL}
     if command == "mesh":
-        files.update({"mesh.vtu": per["mesh"], "mesh.png": PICTURE})
+        files.update({"mesh.vtu": per["mesh"], "mesh.png": MESH_PICTURE})
     elif command in ("move", "tune"):
         name = "moved_mesh" if command == "move" else "tuned_mesh"
         files.update({f"{name}.vtu": per["moved"], f"{name}.png": PICTURE, f"{command}.json": SMALL})
@@ -91,8 +93,9 @@ def estimate(scene, command: str) -> OutputEstimate:
             files.update({f"design_{tag}.vtu": per["design"], f"design_{tag}.png": PICTURE})
         held = min(o.max_iter, max(d.stage_iterations, 1))          # evaluations of one stage
         files.update({"checkpoint.npz": per["state"] + 4 * 8.0 * n_design * held,
-                      "design.npy": 8.0 * n_design, "convergence.png": PICTURE,
-                      "history.csv": SMALL, "history.json": SMALL, "result.json": SMALL})
+                      "design.npy": 8.0 * n_design, "convergence.png": PLOT,
+                      "history.csv": SMALL, "history.json": SMALL, "result.json": SMALL,
+                      "design_series.pvd": SMALL})
     else:                                                            # check-gradients, study
         files.update({f"{command}.json": SMALL})
     return OutputEstimate(files)

@@ -59,6 +59,14 @@ def _limit(folder: Path, name: str, default: int) -> int:
         return default
 
 
+def _exists(path: Path) -> bool:
+    """``path.exists()``, False for a name the system refuses to look up (too long)."""
+    try:
+        return path.exists()
+    except OSError:
+        return False
+
+
 def check_names(real: Path, existing: Path, key: str, shown: str) -> None:
     """The folders still to create under ``existing`` have names the file system takes (no
     control characters, at most NAME_MAX bytes), and the longest path a run writes in
@@ -86,10 +94,10 @@ def check_writable(path, key: str = "--output", shown: str | None = None) -> Pat
     for system in SYSTEM_FOLDERS:
         if real == system or system in real.parents:
             raise InputError(key, shown, f"lies in the system folder {system}; choose a folder for results")
-    if real.exists() and not real.is_dir():
+    if _exists(real) and not real.is_dir():
         raise InputError(key, shown, "is a file, not a folder")
     existing = real
-    while not existing.exists():
+    while not _exists(existing):
         existing = existing.parent
     if not existing.is_dir():
         raise InputError(key, shown, f"lies under {existing}, which is a file, not a folder")
