@@ -420,3 +420,16 @@ def test_the_study_examples_run_without_arguments(example, tmp_path):
     made = {"mesh_motion_study.py": "results/mesh_motion_study/graded/triangulation.csv",
             "tuning_band_study.py": "results/tuning_band_study/band.csv"}[example]
     assert (tmp_path / made).is_file()
+
+
+def test_a_scene_file_of_megabytes_is_announced_before_it_is_read(tmp_path):
+    """A 10 MB scene read for minutes without a word; now a line says what is being read."""
+    scene = tmp_path / "big.toml"
+    scene.write_text(open(FOIL).read() + ("# padding\n" * 120_000))             # 1.2 MB
+    run = tofsi(["mesh", str(scene), "--output", "out", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1"],
+                tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.splitlines()[0] == f"reading the scene file {scene} (1 MB) ..."
+    quiet = tofsi(["mesh", str(scene), "--output", "out2", "-q", "--set", "mesh.h_min=0.1",
+                   "--set", "mesh.h_max=0.1"], tmp_path)
+    assert quiet.returncode == 0 and quiet.stderr == ""
