@@ -7,6 +7,7 @@ import pytest
 
 import tofsi
 import tofsi.plotting as plotting
+from tofsi.registry import OBJECTIVES
 from tofsi.channel import build_mesh
 from tofsi.commands.context import RunContext
 from tofsi.commands.optimize import Pictures
@@ -102,7 +103,7 @@ def test_convergence_has_units_and_a_legend_for_its_stage_lines(figures):
     history = [{"iteration": k, "objective": 50.0 * 0.7 ** k, "constraint": -0.1 / (k + 1),
                 "stage": k // 4, "beta": 2.0 ** (k // 4)} for k in range(14)]
     plotting.plot_convergence("c.png", history, title="beam_in_channel_optimization: compliance",
-                              objective_label=plotting.OBJECTIVE_LABELS["compliance"])
+                              objective_label=OBJECTIVES.get("compliance").axis_label())
     fig = figures[0]
     check_layout(fig)
     legend = [t.get_text() for lg in fig.legends for t in lg.get_texts()]

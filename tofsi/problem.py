@@ -28,7 +28,8 @@ from tofsi.coupled import CoupledModel, State
 from tofsi.design import DesignMap
 from tofsi.design_file import read_design
 from tofsi.errors import InputError
-from tofsi.objectives import OBJECTIVES, VolumeFraction
+from tofsi.objectives.volume import VolumeFraction
+from tofsi.registry import OBJECTIVES
 
 
 class Problem:
@@ -40,12 +41,9 @@ class Problem:
         self.scene = scene
         self.model = CoupledModel(scene, mesh)
         d = scene.design
-        needs = OBJECTIVES[d.objective].needs                 # the effect it is a figure of
-        if getattr(scene.effects, needs) == "none":
-            raise InputError("design.objective", d.objective, f"needs effects.{needs}")
         self.params: Continuation = self.model.params
         self.map = DesignMap(self.model.mesh, d.filter_radius, self.params.beta, d.eta)
-        self.objective = OBJECTIVES[d.objective]()
+        self.objective = OBJECTIVES.get(d.objective)()     # its effect is checked with the scene
         self.volume_fraction = VolumeFraction(self.model.mesh, self.map.design)
         self._cache: dict = {}
         self._guess: State | None = None

@@ -9,7 +9,7 @@ import numpy as np
 from tofsi.optimize import Optimizer
 from tofsi import quality
 from tofsi.output import atomic_write, write_vtu
-from tofsi.plotting import OBJECTIVE_LABELS, plot_convergence, plot_design
+from tofsi.plotting import plot_convergence, plot_design
 from tofsi.problem import Problem
 from tofsi.resume import check_checkpoint
 
@@ -95,7 +95,7 @@ def run(scene, args, ctx) -> dict:
     figures = optimizer.run(resume=args.resume)
     ctx.extra["stop_reason"] = figures["stop_reason"]
     plot_convergence(ctx.output / "convergence.png", [h.__dict__ for h in optimizer.history],
-                     title=f"{scene.name}: {d.objective}", objective_label=OBJECTIVE_LABELS[d.objective])
+                     title=f"{scene.name}: {d.objective}", objective_label=problem.objective.axis_label())
     ctx.say(f"final {d.objective} {figures['objective']:.6g}, volume {figures['volume']:.4f} "
             f"(constraint {figures['constraint']:.2e}), non-discreteness "
             f"{figures['non_discreteness_percent']:.1f} %, {figures['iterations']} iterations, "
