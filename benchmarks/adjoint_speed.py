@@ -22,8 +22,8 @@ structure and mesh), and a two-way design iteration (forward + adjoint) /
 the one-way iteration of the same scene, mesh and design <= 2.5. Each case
 runs in a fresh process.
 
-    python benchmarks/adjoint.py
-    python benchmarks/adjoint.py --sizes 0.05 0.025 --two-way-sizes 0.025 --repeat 1
+    python benchmarks/adjoint_speed.py
+    python benchmarks/adjoint_speed.py --sizes 0.05 0.025 --two-way-sizes 0.025 --repeat 1
 """
 
 from __future__ import annotations

@@ -25,9 +25,6 @@ import sys
 import time
 from pathlib import Path
 
-# This folder holds ``movers.py`` and ``adjoint.py``, named like the packages; running a
-# script puts its folder first on sys.path, which would shadow them.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 import numpy as np  # noqa: E402
 

@@ -15,8 +15,8 @@ and prints the ratios the project's targets are stated in
 8 degree rotation of the foil, which every mover survives at every size (the
 unstiffened linear mover inverts the corner elements of the finest mesh, hence chi = 1).
 
-    python benchmarks/movers.py                      # full table, ~1e4 .. 3e5 nodes
-    python benchmarks/movers.py --refine 1 2 --repeat 1
+    python benchmarks/mover_speed.py                      # full table, ~1e4 .. 3e5 nodes
+    python benchmarks/mover_speed.py --refine 1 2 --repeat 1
 """
 
 from __future__ import annotations

@@ -22,10 +22,8 @@ tangential velocity (strongly), walls elsewhere. Velocity and pressure live on t
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402

@@ -8,7 +8,7 @@ import pytest
 from movers.base import MotionProblem
 from movers.spring import SpringMover, SpringParams
 from movers.spring_kernel import quad_stiffness, triangle_stiffness
-from reference_kernels import spring_quad, spring_triangle
+from reference_kernels import spring_quad
 from tofsi.mesh import StructuredQuadMesh
 
 
