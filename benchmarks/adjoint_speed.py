@@ -29,6 +29,7 @@ runs in a fresh process.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import subprocess
@@ -116,7 +117,7 @@ def run_fsi_case(h: float, coupling: str) -> dict:
     import tofsi
 
     problem = tofsi.Problem(tofsi.load_scene(FSI_SCENE, [f"mesh.h_min={h}", f"mesh.h_max={h}"]))
-    problem.set_stage(beta=problem.scene.design.beta[-1], coupling=coupling)
+    problem.set_stage(dataclasses.replace(problem.params, beta=problem.scene.design.beta[-1], coupling=coupling))
     rng = np.random.default_rng(0)
     return time_iteration(problem, post_design(problem, rng), rng)
 

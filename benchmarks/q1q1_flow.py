@@ -22,6 +22,7 @@ tangential velocity (strongly), walls elsewhere. Velocity and pressure live on t
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 
@@ -124,7 +125,7 @@ def main() -> None:
     p = tofsi.Problem(scene)
     stokes = tofsi.Problem(tofsi.load_scene(args.scene, args.set + ["effects.fluid=stokes"]))
     for problem in (p, stokes):                      # the last continuation step's q
-        problem.set_stage(q=scene.design.brinkman_q[-1])
+        problem.set_stage(dataclasses.replace(problem.params, brinkman_q=scene.design.brinkman_q[-1]))
     mesh = p.model.mesh
     f = scene.fluid
     inflow = [(a, b, U) for a, b, U in f.left.inflow]

@@ -136,11 +136,11 @@ def test_filter_projection_and_design_map_transposes():
     lhs, rhs = _dot(lambda a: proj.derivative(x) * a, lambda b: proj.transpose(x, b), 60, 60)
     assert lhs == pytest.approx(rhs, rel=1e-13)
     P = problem()
-    M = DesignMap(P.model.mesh, 0.2, 4.0)
+    M = DesignMap(P.model.mesh, 0.2)
     g = rng.uniform(0, 1, M.size)
     h = 1e-6
-    Jv = lambda a: (M.forward(g + h * a) - M.forward(g - h * a)) / (2 * h)
-    lhs, rhs = _dot(Jv, lambda b: M.transpose(g, b), M.size, P.model.mesh.n_elements)
+    Jv = lambda a: (M.forward(g + h * a, 4.0) - M.forward(g - h * a, 4.0)) / (2 * h)
+    lhs, rhs = _dot(Jv, lambda b: M.transpose(g, 4.0, b), M.size, P.model.mesh.n_elements)
     assert lhs == pytest.approx(rhs, rel=1e-8)
 
 

@@ -153,7 +153,7 @@ def test_the_design_vtu_carries_design_variables_filtered_densities_and_sensitiv
     w = np.maximum(r - d, 0.0)
     filtered = w @ gamma / w.sum(axis=1)
     np.testing.assert_allclose(field["filtered_density"][design], filtered, rtol=1e-12)
-    b, e = problem.map.projection.beta, scene.design.eta
+    b, e = problem.params.beta, scene.design.eta
     projected = (np.tanh(b * e) + np.tanh(b * (filtered - e))) / (np.tanh(b * e) + np.tanh(b * (1 - e)))
     np.testing.assert_allclose(field["density"][design], projected, rtol=1e-12)
     np.testing.assert_allclose(field["sensitivity"][design], problem.evaluate(gamma)[1], rtol=1e-12)

@@ -45,14 +45,9 @@ class Pictures:
         p, mesh = self.problem, self.problem.model.mesh
         tag = iteration if iteration == "final" else f"{iteration:04d}"
         X = mesh.points if state.x is None else mesh.points + state.mesh_displacement
-        speed = None
-        point_data = {}
-        if state.w is not None:
-            v = state.w[:p.model.flow.n_velocity].reshape(-1, 2)
-            speed = np.linalg.norm(v[: mesh.n_nodes], axis=1)
-            point_data = {"velocity": v[: mesh.n_nodes], "pressure": state.w[p.model.flow.n_velocity:]}
-        if state.u is not None:
-            point_data["structure_displacement"] = state.u.reshape(-1, 2)
+        point_data = {name: values[:mesh.n_nodes] for field in p.model.fields     # Q2 nodes: corners first
+                      for name, values in field.point_data(p.model, state).items()}
+        speed = np.linalg.norm(point_data["velocity"], axis=1) if "velocity" in point_data else None
         name = f"design_{tag}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
                     title=f"{p.scene.name}: design at iteration {iteration}")

@@ -70,7 +70,7 @@ def design_densities(scene, args):
         raise InputError("--stage", stage_arg, f"allowed: 0 to {n_stages - 1} or last")
     problem = Problem(scene)                         # reads and checks design.initial
     params = continuation(scene, stage)
-    problem.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q, coupling=params.coupling)
+    problem.set_stage(params)
     gamma = problem.initial_design()
     about = {"design": d.initial or "uniform", "stage": stage, "beta": params.beta,
              "penalty": params.penalty, "brinkman_q": params.brinkman_q}
