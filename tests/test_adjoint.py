@@ -101,7 +101,7 @@ def test_dropping_a_coupling_block_breaks_the_taylor_test(block, monkeypatch):
                         if other == "x" else original(self, other))
     t, err, _ = check_total_derivative(P, gamma, d)
     assert t.min_rate < 1.3, t                                  # first order: a term is missing
-    assert not (t.min_rate > 1.9)                               # the guard of the tests above fails
+    assert err > 1e-4, err                                      # and the central difference sees it
 
 
 def test_adjoint_refuses_an_unconverged_state():

@@ -24,12 +24,16 @@ SCENE = "examples/scenes/beam_in_channel_optimization.toml"
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_unknowns_counted_from_the_axes_match_the_built_model():
-    scene = tofsi.load_scene(SCENE, ["mesh.h_min=0.05", "mesh.h_max=0.05"])
+@pytest.mark.parametrize("extra", [[], ["effects.coupling=two-way", "mover.name=yeoh"]])
+def test_unknowns_counted_from_the_axes_match_the_built_model(extra):
+    """For every field the model builds, the estimate's unknowns (from the mesh axes alone) are
+    its block's size; a two-way scene adds the mesh motion."""
+    scene = tofsi.load_scene(SCENE, ["mesh.h_min=0.05", "mesh.h_max=0.05", *extra])
     est = memory.estimate(scene, "solve")
     model = CoupledModel(scene)
     assert est.elements == model.mesh.n_elements
-    assert est.unknowns == {"flow": model.flow.size, "structure": model.structure.size}
+    sizes = {field.title: model.system.by_name[field.name].size for field in model.fields}
+    assert est.unknowns == sizes and len(sizes) == (3 if extra else 2)
 
 
 def test_the_888k_element_solve_is_refused_in_seconds_with_exit_2(tmp_path, capsys):

@@ -32,6 +32,12 @@ def environment_int(name: str, value: int) -> int:
         return value
 
 
+def solver_threads(requested: int = 0) -> int:
+    """Threads for the sparse direct backend (0: one per core; ``TOFSI_THREADS`` wins)."""
+    n = environment_int("TOFSI_THREADS", requested)
+    return n if n > 0 else (os.cpu_count() or 1)
+
+
 @dataclass(frozen=True)
 class LinearAlgebra:
     """backend : a concrete backend name (``superlu``, ``pardiso``, ``petsc``); threads :
@@ -49,8 +55,8 @@ class LinearAlgebra:
         ``threads = 0`` one per core; the environment's overrides applied."""
         from tofsi.linalg.backends import resolve
         name = os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or settings.linear_solver
-        threads = environment_int("TOFSI_THREADS", settings.threads) or (os.cpu_count() or 1)
-        return cls(resolve(name), threads, environment_int("TOFSI_BLAS_THREADS", settings.blas_threads))
+        return cls(resolve(name), solver_threads(settings.threads),
+                   environment_int("TOFSI_BLAS_THREADS", settings.blas_threads))
 
     def direct(self, A, perm=None):
         """A :class:`~tofsi.linalg.DirectSolver` of ``A`` on this backend."""
