@@ -261,8 +261,8 @@ def test_a_file_size_limit_below_the_largest_file_is_refused_before_computing(tm
 
 def test_a_file_size_limit_hit_during_an_optimization_keeps_the_iterations_done(tmp_path):
     """An 80 KB limit passes the estimate (pictures about 0.1 MB, refused below 50 KB) but not
-    the first design picture (about 120 KB): exit 4 naming it; the checkpoint and the history
-    written before it are complete, and --resume continues from them without the limit."""
+    the first design picture (about 120 KB): exit 4 naming it; the design, the history and the
+    checkpoint written before it are complete, and --resume continues from them without the limit."""
     import json
     import numpy as np
     run = limited(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3"],
@@ -271,6 +271,10 @@ def test_a_file_size_limit_hit_during_an_optimization_keeps_the_iterations_done(
     assert "File too large" in run.stderr
     history = json.loads((tmp_path / "out" / "history.json").read_text())
     assert [h["iteration"] for h in history] == [0]
+    import tofsi as toolkit
+    n = toolkit.Problem(toolkit.load_scene(OPT, [a for a in TINY_OPT if a != "--set"])).n_design
+    design = np.load(tmp_path / "out" / "design.npy")
+    assert design.shape == (n,) and 0 <= design.min() and design.max() <= 1
     with np.load(tmp_path / "out" / "checkpoint.npz") as npz:
         assert json.loads(str(npz["meta"]))["history"][0]["objective"] == history[0]["objective"]
     again = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",

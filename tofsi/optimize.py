@@ -5,7 +5,8 @@ The driver reads top to bottom::
     for each continuation stage (projection beta, SIMP penalty, Brinkman q):
         NLopt minimizes f(gamma) / f(gamma_0) subject to g(gamma) <= 0, 0 <= gamma <= 1,
         each evaluation: one forward solve + one adjoint per quantity (cached),
-        after each evaluation: history row, checkpoint, pictures every N iterations.
+        after each evaluation: history row and design.npy (small, first), checkpoint,
+        pictures every N iterations.
 
 Resuming is exact. NLopt's MMA keeps internal state that cannot be saved,
 so a checkpoint holds every evaluation of the current stage and the last
@@ -162,10 +163,11 @@ class Optimizer:
                        params.coupling or self.scene.effects.coupling, *entry["quality"])
         self.history.append(it)
         if "state" in entry:                           # computed now (not replayed): save
+            self._write_history()                      # the small results first: a full disk
+            self._write_design(gamma)                  # keeps them (the line says so)
             self._checkpoint(entry["state"])
             for earlier in run.log[:-1]:               # hold one state (and its factorizations)
                 earlier.pop("state", None)
-            self._write_history()
             if self.on_picture and (it.iteration % self.settings.output_every == 0):
                 self.on_picture(it.iteration, gamma, entry["state"])
         if self.on_iteration:
@@ -283,6 +285,11 @@ class Optimizer:
         write_csv(self.output / "history.csv", rows)
         write_json(self.output / "history.json", rows)
 
+    def _write_design(self, gamma: np.ndarray) -> None:
+        """``design.npy``: the design variables of the latest iteration (the final design once
+        the run ends), for ``tofsi solve --design``."""
+        atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))
+
     def finish(self, gamma: np.ndarray) -> dict:
         """Evaluate the final design (after the last stage's parameters) and summarize it."""
         p = self.problem
@@ -298,8 +305,8 @@ class Optimizer:
                    "stage": self.history[-1].stage if self.history else 0,     # of these figures
                    **p.model.figures(state)}
         self._write_history()
+        self._write_design(gamma)
         write_json(self.output / "result.json", figures)
-        atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))
         if self.on_picture:
             self.on_picture("final", gamma, state)
         self.final_state = state
