@@ -49,6 +49,17 @@ CASES = [
     ("move", FOIL, ["deformation.translation=0.6"], "deformation.translation"),
     ("move", FOIL, ["deformation.mode=rotation", "deformation.rotation_deg=90",
                     "geometry.solids=[[0.2, 1.8, 0.45, 0.55]]"], "deformation.rotation_deg"),
+    # issue 25: passed validation, then crashed or did something else than asked
+    ("solve", OPT, ["structure.clamped=[]"], "structure.clamped"),            # ValueError in concatenate
+    ("optimize", OPT, ["structure.clamped=[]"], "structure.clamped"),
+    ("mesh", FOIL, ['name="a\nb"'], "name"),                                   # a folder with a newline
+    ("move", FOIL, ["effects.mesh_motion=spring", "mover.name=yeoh"], "mover.name"),    # last one won
+    ("move", FOIL, ["mover.name=yeoh", "effects.mesh_motion=spring"], "effects.mesh_motion"),
+    ("move", FOIL, ["mover.layers[0]=2"], "mover.layers[0]"),                  # "unknown key"; empty list
+    ("move", FOIL, ["geometry.solids[1]=[0.1, 0.2, 0.1, 0.2]"], "geometry.solids[1]"),  # one solid only
+    ("move", FOIL, ["mover.layers=[1e30]"], "mover.layers[0]"),                # exit 3 at element 0
+    ("tune", FOIL, ["tune.max_factor=1e9"], "tune.max_factor"),
+    ("study", FOIL, ["--max-memory", "nan", "--sweep", "mover.layers[0]=1:2:1"], "--max-memory"),
 ]
 
 
@@ -70,10 +81,12 @@ def test_bad_values_exit_2_naming_the_key_and_write_nothing(command, scene, over
     assert os.listdir(tmp_path) == []                                  # nothing partial
 
 
-@pytest.mark.parametrize("kind", ["missing", "directory", "not toml", "binary"])
+@pytest.mark.parametrize("kind", ["missing", "directory", "not toml", "binary", "device"])
 def test_unreadable_or_missing_scene_files_exit_2(kind, tmp_path):
     path = tmp_path / "scene.toml"
-    if kind == "directory":
+    if kind == "device":                            # said "no such file"
+        path = "/dev/null"
+    elif kind == "directory":
         path.mkdir()
     elif kind == "not toml":
         path.write_text("name = 'x'\n[mesh\nh_min = 1\n")
@@ -82,6 +95,8 @@ def test_unreadable_or_missing_scene_files_exit_2(kind, tmp_path):
     run = tofsi(["mesh", str(path), "--output", str(tmp_path / "out")], tmp_path)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
     assert "scene" in run.stderr and not (tmp_path / "out").exists()
+    if kind == "device":
+        assert "not a regular file" in run.stderr
 
 
 @pytest.mark.parametrize("args", [["mesh"], ["nonsense", FOIL], ["mesh", FOIL, "--set"],
@@ -104,9 +119,14 @@ def write_design(path, kind, n):
         np.save(path, np.array([{"a": 1}], dtype=object), allow_pickle=True)
     elif kind == "directory":
         path.mkdir()
+    elif kind == "strings":
+        np.save(path, np.array(["0.2"] * n))
+    elif kind == "complex":
+        np.save(path, np.full(n, 0.2 + 0j))
 
 
-@pytest.mark.parametrize("kind,says", [("outside [0, 1]", "not clipped"), ("text", "not a NumPy .npy file"),
+@pytest.mark.parametrize("kind,says", [("strings", "holds text"), ("complex", "holds complex numbers"),
+                                       ("outside [0, 1]", "not clipped"), ("text", "not a NumPy .npy file"),
                                        ("wrong size", "needs"), ("pickle", "not a NumPy .npy file"),
                                        ("directory", "is a directory")])
 def test_a_bad_saved_design_exits_2_with_a_plain_message(kind, says, tmp_path):
@@ -437,3 +457,35 @@ def test_a_scene_file_of_megabytes_is_announced_before_it_is_read(tmp_path):
     quiet = tofsi(["mesh", str(scene), "--output", "out2", "-q", "--set", "mesh.h_min=0.1",
                    "--set", "mesh.h_max=0.1"], tmp_path)
     assert quiet.returncode == 0 and quiet.stderr == ""
+
+
+def test_one_list_entry_is_set_by_its_index():
+    """--set KEY[i]=V said "unknown key"; it replaces entry i of the scene's list."""
+    import tofsi as toolkit
+    both = toolkit.load_scene(FOIL, ["mover.layers=[1.5, 2.5]", "mover.layers[1]=3"])
+    assert both.mover.layers == (1.5, 3.0)
+    moved = toolkit.load_scene(FOIL, ["geometry.solids[0][1]=1.3"])
+    assert moved.geometry.solids == ((0.75, 1.3, 0.475, 0.525),)
+    assert moved == toolkit.load_scene(FOIL, ["geometry.solids=[[0.75, 1.3, 0.475, 0.525]]"])
+
+
+def test_thousands_of_rectangles_are_refused_before_the_mesh_is_graded(tmp_path):
+    """A 10 MB scene of 350k solids graded for minutes without a word (5000 solids would have
+    taken hours): the grid lines their edges need are counted first."""
+    import random
+    import re
+    import time
+    rnd = random.Random(1)
+    rows = []
+    for _ in range(5000):
+        x, y = rnd.uniform(0.1, 1.8), rnd.uniform(0.1, 0.8)
+        rows.append(f"[{x:.5f}, {x + 0.01:.5f}, {y:.5f}, {y + 0.01:.5f}]")
+    scene = tmp_path / "many.toml"
+    scene.write_text(re.sub(r"^solids = .*$", "solids = [" + ", ".join(rows) + "]", open(FOIL).read(),
+                            flags=re.M))
+    t0 = time.perf_counter()
+    run = tofsi(["mesh", str(scene), "--output", "out"], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "geometry.solids" in lines[0] and "5000 rectangles" in lines[0] and "mesh.max_elements" in lines[0]
+    assert time.perf_counter() - t0 < 30 and not (tmp_path / "out").exists()
