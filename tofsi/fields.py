@@ -219,7 +219,8 @@ class StructureEntry(Field):
         U = state.u.reshape(-1, 2)
         scale = 0.1 * np.ptp(mesh.points, axis=0).max() / max(np.abs(U).max(), 1e-300)
         scale = min(scale, 1.0) if state.x is not None else scale
-        return [Picture("deformed", f"structure displacement (magnified {scale:.3g} times)",
+        size = f"magnified {scale:.3g} times" if scale >= 1 else f"drawn at {scale:.3g} of its size"
+        return [Picture("deformed", f"structure displacement ({size})",
                         "density rho (0 fluid, 1 solid)", state.rho, kind="mesh", cmap="Greys",
                         points=mesh.points + scale * U, vmin=0.0, vmax=1.0)]
 
