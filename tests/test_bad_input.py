@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from conftest import scene_path
@@ -489,3 +490,59 @@ def test_thousands_of_rectangles_are_refused_before_the_mesh_is_graded(tmp_path)
     assert run.returncode == 2 and len(lines) == 1, run.stderr
     assert "geometry.solids" in lines[0] and "5000 rectangles" in lines[0] and "mesh.max_elements" in lines[0]
     assert time.perf_counter() - t0 < 30 and not (tmp_path / "out").exists()
+
+
+# ---- issue 25: diagnostics that point at the failing element ------------------------------------
+FSI = str(scene_path("beam_in_channel_optimization_fsi"))
+
+
+def test_a_failed_two_way_solve_names_the_element_the_predictor_inverts(tmp_path):
+    """solve --stage last at E = 5 blamed "worst element 0 (skewness 1)": a perfect corner
+    element of the undeformed mesh. The message now names the element the mover's predictor
+    inverts; checked against the mesh: its number's reference centre is the one printed, and
+    it lies at the beam (within two elements of the solid), where the flow pushes."""
+    import json
+    import re
+    import tofsi as toolkit
+    from tofsi.channel import build_mesh
+    from tofsi.mesh import SOLID
+    mesh_args = ["mesh.h_min=0.05", "mesh.h_max=0.05", "structure.youngs_modulus=5"]
+    run = tofsi(["solve", FSI, "--stage", "last", "--output", "out", *[a for o in mesh_args for a in ("--set", o)]],
+                tmp_path)
+    assert run.returncode == 3, run.stderr
+    line = run.stderr.strip().splitlines()[-1]
+    assert "skewness 1)" not in line and "worst element 0 " not in line
+    found = re.search(r"inverts element (\d+) at \(([-\d.e]+), ([-\d.e]+)\) m \(skewness (-[\d.e]+)\)", line)
+    assert found, line
+    k, x, y = int(found[1]), float(found[2]), float(found[3])
+    mesh = build_mesh(*(lambda s: (s.geometry, s.mesh))(toolkit.load_scene(FSI, mesh_args)))
+    np.testing.assert_allclose(mesh.centroids[k], [x, y], rtol=5e-3, atol=1e-12)
+    solid = mesh.centroids[mesh.region == SOLID]
+    assert np.min(np.linalg.norm(solid - mesh.centroids[k], axis=1)) < 2 * 0.05
+    diagnostic = json.loads((tmp_path / "out" / "diagnostic.json").read_text())
+    assert diagnostic["broken_element"]["element"] == k and diagnostic["broken_element"]["skewness"] < 0
+
+
+def test_a_newton_that_stops_on_a_valid_mesh_says_no_element_failed(tmp_path):
+    """A Yeoh move out of Newton iterations: no element is blamed; the message says none
+    inverted."""
+    import json
+    run = tofsi(["move", FOIL, "--output", "out", "--set", "deformation.mode=rotation", "--set",
+                 "mover.yeoh.max_newton=1", "--set", "mover.yeoh.max_cutbacks=0", "--set",
+                 "mover.yeoh.increments=4"], tmp_path)
+    assert run.returncode == 3, run.stderr
+    line = run.stderr.strip().splitlines()[-1]
+    assert "1 Newton iterations at load 0.25 did not reach the tolerance (no element inverted)" in line
+    assert "worst element" not in line and "no load step was accepted" in line, line
+    assert "broken_element" not in json.loads((tmp_path / "out" / "diagnostic.json").read_text())
+
+
+def test_an_inverted_mesh_message_rounds_its_coordinates(tmp_path):
+    """failed_mesh.png's title carried 16-digit coordinates ("at [1.2762882690614328, ...]")."""
+    import re
+    run = tofsi(["move", FOIL, "--output", "out", "--set", "mover.name=spring", "--set", "deformation.mode=rotation",
+                 "--set", "deformation.rotation_deg=45", "--set", "mover.spring.increments=1",
+                 "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.1"], tmp_path)
+    assert run.returncode == 3, run.stderr
+    assert re.search(r"worst element \d+ \(skewness -?[\d.]+\) at \([\d.]+, [\d.]+\) m", run.stderr), run.stderr
+    assert not re.search(r"\d\.\d{5,}", run.stderr.split("(diagnostic")[0])
