@@ -546,3 +546,16 @@ def test_an_inverted_mesh_message_rounds_its_coordinates(tmp_path):
     assert run.returncode == 3, run.stderr
     assert re.search(r"worst element \d+ \(skewness -?[\d.]+\) at \([\d.]+, [\d.]+\) m", run.stderr), run.stderr
     assert not re.search(r"\d\.\d{5,}", run.stderr.split("(diagnostic")[0])
+
+
+def test_the_readme_exit_status_table_lists_every_status():
+    """Every status the command line returns (run.json's status words, the errors' exit
+    statuses) has a row in README's table, and the table has no other."""
+    import re
+    from pathlib import Path
+    from tofsi import errors
+    from tofsi.run_folder import STATUS
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    rows = {int(m) for m in re.findall(r"^\| (\d+) \| ", readme, flags=re.M)}
+    raised = {cls.exit_status for cls in (errors.InputError, errors.NumericalError, errors.WriteError)}
+    assert rows == set(STATUS) and raised <= rows and {0, 1, 130, 143} <= rows

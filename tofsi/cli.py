@@ -84,7 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--overwrite", action="store_true",
                        help="replace the files of a previous run in the output folder")
         p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                       help="override a scene value by dotted key, e.g. --set mover.name=spring")
+                       help="override a scene value by dotted key, e.g. --set mover.name=spring; "
+                            "KEY[i]=VALUE replaces entry i of a list, e.g. --set mover.layers[0]=2")
         p.add_argument("--json", action="store_true",
                        help="print one JSON object with the run's figures on stdout")
         p.add_argument("-v", "--verbose", action="count", default=0,
