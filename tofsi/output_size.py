@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tofsi.errors import InputError
+from tofsi.registry import FIELDS
 
 MB = 1e6
 CLEARLY_SHORT = 0.5              # refuse below this share of the estimate
@@ -82,8 +83,7 @@ def estimate(scene, command: str) -> OutputEstimate:
         name = "moved_mesh" if command == "move" else "tuned_mesh"
         files.update({f"{name}.vtu": per["moved"], f"{name}.png": PICTURE, f"{command}.json": SMALL})
     elif command == "solve":
-        e = scene.effects
-        pictures = ["velocity", "pressure"] * (e.fluid != "none") + ["deformed"] * (e.structure != "none")
+        pictures = [n for field in FIELDS if field.active(scene, "solve") for n in field.picture_names]
         files.update({"solution.vtu": per["solution"], "solve.json": SMALL,
                       **{f"solution_{k}.png": PICTURE for k in pictures}})
     elif command == "optimize":
