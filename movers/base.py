@@ -27,6 +27,7 @@ from typing import Callable, ClassVar
 import numpy as np
 
 from movers.blend import Blend, node_scale
+from movers.failure import at
 from tofsi import quality
 from tofsi.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector, element_dofs
@@ -200,49 +201,6 @@ def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
             "min_area_change": s.min_area_change, "max_area_change": s.max_area_change,
             "n_inverted": s.n_inverted, "worst_element": int(problem.element_ids[s.min_skewness_element]),
             "worst_location": list(s.min_skewness_location)}
-
-
-def at(location) -> str:
-    """``(0.741, 0.454) m``: a location in a message, to 3 significant digits."""
-    return f"({location[0]:.3g}, {location[1]:.3g}) m"
-
-
-def broken_element(problem: MotionProblem, x: np.ndarray, det_min: np.ndarray | None = None) -> dict | None:
-    """The element a trial displacement ``x`` (2n,) breaks: the one with the smallest
-    ``det F`` when some is <= 0 (``det_min`` (Em,), per element), else the most inverted by
-    its corners; None when no element is inverted. Numbered by the mesh, located at its
-    reference centre."""
-    P = problem.points + np.asarray(x).reshape(-1, 2)
-    corners = quality.corner_jacobians(P, problem.quads).min(axis=1)          # (Em,)
-    if det_min is not None and np.min(det_min) <= 0.0:
-        k = int(np.argmin(det_min))
-    elif np.min(corners) <= 0.0:
-        k = int(np.argmin(corners))
-    else:
-        return None
-    centre = problem.points[problem.quads[k]].mean(axis=0)
-    return {"element": int(problem.element_ids[k]), "location": [float(centre[0]), float(centre[1])],
-            "skewness": float(quality.skewness(P, problem.quads[k:k + 1])[0])}
-
-
-def describe_break(broken: dict | None) -> str:
-    """``inverts element 954 at (0.743, 0.454) m (skewness -0.26)``, or that none is inverted."""
-    if broken is None:
-        return "no element inverted"
-    return (f"inverts element {broken['element']} at {at(broken['location'])} "
-            f"(skewness {broken['skewness']:.2g})")
-
-
-@dataclass(frozen=True)
-class Trouble:
-    """Why a step failed: ``text`` for the message, ``broken`` the element it inverted
-    (:func:`broken_element`; None when the mesh stayed valid)."""
-
-    text: str
-    broken: dict | None = None
-
-    def __str__(self) -> str:
-        return self.text
 
 
 class Mover(ABC):

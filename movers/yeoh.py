@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from movers.base import (MotionProblem, Mover, MoveReport, MoveResult, Trouble, broken_element,
-                         describe_break, element_apply, quality_record)
+from movers.base import MotionProblem, Mover, MoveReport, MoveResult, element_apply, quality_record
+from movers.failure import Trouble, broken_element, describe_break
 from movers.incremental import system
 from movers.yeoh_kernel import YeohKernel
 from tofsi import quality
