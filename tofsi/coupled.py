@@ -51,6 +51,15 @@ def continuation(scene, stage: int = 0) -> Continuation:
                         coupling=pick(d.coupling, ""))
 
 
+def two_way_stages(scene) -> list[int]:
+    """The continuation stages a scene solves two-way (its effects two-way with a mover, and the
+    stage's ``design.coupling`` entry not one-way)."""
+    e = scene.effects
+    if not (e.coupling == "two-way" and e.mesh_motion != "none" and e.structure != "none"):
+        return []
+    return [k for k in range(scene.design.n_stages) if continuation(scene, k).coupling != "one-way"]
+
+
 class CoupledModel:
     """Fields, blocks and the coupled solve of a scene (with its design densities).
 

@@ -207,6 +207,11 @@ class Optimizer:
     # ---- the run ---------------------------------------------------------------------
     def run(self, resume: bool = False) -> dict:
         """Optimize from the initial design (or the checkpoint); returns the final figures."""
+        return self.finish(self.design_after(self.design.n_stages, resume))
+
+    def design_after(self, end: int, resume: bool = False) -> np.ndarray:
+        """The design the stages before ``end`` reach (from the initial design, or the
+        checkpoint), without the final evaluation and summary of :meth:`run`."""
         p, s, d = self.problem, self.settings, self.design
         gamma = p.initial_design()
         resumed = None
@@ -217,8 +222,7 @@ class Optimizer:
             resumed = StageRun(meta["stage"], np.asarray(meta["stage_start"], dtype=float), meta["scale"],
                                replay=replay)
             p.set_guess(state)
-        n_stages = d.n_stages
-        for stage in range(resumed.stage if resumed else 0, n_stages):
+        for stage in range(resumed.stage if resumed else 0, end):
             remaining = s.max_iter - len(self.history)
             if remaining <= 0:
                 break
@@ -227,9 +231,9 @@ class Optimizer:
                 self.run_stage = resumed              # the stage's start and scale, replayed
             else:                                     # each stage starts within the volume bound
                 self.run_stage = StageRun(stage, p.feasible(gamma))
-            last_stage = stage == n_stages - 1
+            last_stage = stage == d.n_stages - 1
             gamma = self._run_stage(remaining if last_stage else min(remaining, d.stage_iterations))
-        return self.finish(gamma)
+        return gamma
 
     def _converged(self, stage: int) -> bool:
         """Stop a stage once the design settles: after ``MIN_STAGE`` evaluations, the largest
