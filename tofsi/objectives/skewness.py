@@ -13,7 +13,6 @@ is not registered): a constraint of two-way stages (``design.min_skewness``).
 
 from __future__ import annotations
 
-import numpy as np
 
 from tofsi.soft_quality import corner_skewness, corner_skewness_vjp, soft_min
 
