@@ -6,7 +6,7 @@ at their own meshes, run with ``-m slow``.
 The two-way scene's structure is soft (E = 5 kPa), so its uniform gray starting design (stage 0:
 one-way, beta 1) moves tens of metres in small-strain elasticity: ``solve`` writes the linear
 model's figures (optimize's iteration 0) marked ``physical: false`` with a warning on stderr, in
-solve.json and in run.json saying what to solve instead (--design FILE), and exits 4 unless
+solve.json and in run.json saying what to solve instead (--design FILE), and exits 5 unless
 ``--allow-unphysical`` accepts them.
 """
 
@@ -48,7 +48,7 @@ def test_shipped_scene_runs_through_the_command_line(name, command, size, cli, t
     extra = ["--set", "optimizer.max_iter=3", "--set", "optimizer.output_every=10"] if command == "optimize" else []
     run = cli(command, str(scene_path(name)), *mesh, "--output", str(tmp_path / "out"), "--json", *extra)
     unphysical = (name, command) == ("beam_in_channel_optimization_fsi", "solve")
-    assert run.returncode == (4 if unphysical else 0), run.stderr
+    assert run.returncode == (5 if unphysical else 0), run.stderr
     figures = json.loads(run.stdout)
     assert figures.get("physical", True) is not unphysical
     if unphysical:

@@ -2,7 +2,7 @@
 
 Exit status: 0 success, 1 a failed gradient check, 2 bad input (one line
 naming the key, the value and what is allowed; nothing is written), 3
-numerical failure (a diagnostic file is written to the output folder), 4 a
+numerical failure (a diagnostic file is written to the output folder), 5 a
 result that is no physical state (``solve``: a small-strain displacement
 beyond the channel; written, with ``physical: false``), 130 interrupted
 (Ctrl-C), 143 terminated (SIGTERM, handled like Ctrl-C).
@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "solve":
             p.add_argument("--allow-unphysical", action="store_true",
                            help="accept a one-way small-strain state whose displacement exceeds the "
-                                "channel (exit 0 with a warning; without it: exit 4)")
+                                "channel (exit 0 with a warning; without it: exit 5)")
             p.add_argument("--stage", default="0", metavar="N|last",
                            help="continuation stage whose projection, SIMP penalty and Brinkman q "
                                 "apply (default 0: optimize's first iteration from this design; "

@@ -11,7 +11,7 @@ with the ``stage`` of a run's ``result.json`` that run's final figures
 A one-way state whose small-strain displacement exceeds the channel (a gray
 design far too soft for the flow: optimize's iteration 0 of a soft scene) is no
 physical state: its figures and pictures are written with ``physical: false``
-and a warning, and the exit status is 4, unless ``--allow-unphysical`` accepts
+and a warning, and the exit status is 5, unless ``--allow-unphysical`` accepts
 them (exit 0, the warning kept). Where the mesh moves with the structure
 (two-way) such a displacement is a numerical failure (exit 3).
 """
@@ -30,7 +30,7 @@ from tofsi.problem import Problem
 from tofsi.provenance import solve_settings
 
 
-UNPHYSICAL = 4      # exit status: the figures are written, but they are no physical state
+UNPHYSICAL = 5      # exit status: the figures are written, but they are no physical state
 
 
 def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None:
