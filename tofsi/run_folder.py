@@ -49,7 +49,7 @@ OUTPUT_PATTERNS = ("run.json", "diagnostic.json", "mesh.vtu", "mesh.png", "moved
 RESERVE_FILE = ".tofsi-reserve"
 LONGEST_NAME = 64          # bytes: the longest file name a run writes, its temporary name included
 STATUS = {0: "finished", 1: "checks failed", 2: "bad input", 3: "numerical failure",
-          4: "write failure", 130: "interrupted", 143: "terminated"}
+          4: "write failure", 5: "unphysical result", 130: "interrupted", 143: "terminated"}
 
 
 def _limit(folder: Path, name: str, default: int) -> int:
