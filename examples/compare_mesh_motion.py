@@ -34,7 +34,7 @@ import numpy as np
 
 import tofsi
 from tofsi.optimize import Optimizer, non_discreteness
-from tofsi.plotting import plot_design
+from tofsi.plotting import plot_design, region_outlines
 
 SCENE = Path(__file__).parent / "scenes" / "beam_in_channel_optimization_fsi.toml"
 SMALL = os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0"
@@ -93,9 +93,10 @@ def main(output: Path) -> dict:
         runs[name].update(compliance_two_way=figures["compliance"], max_displacement_m=figures["max_displacement"],
                           non_discreteness_percent=non_discreteness(rho),
                           elements_differing_from_control_percent=float(100 * np.mean(np.abs(rho - control) > 0.5)))
-        plot_design(output / f"{name}.png", judge.model.mesh.points + state.mesh_displacement,
-                    judge.model.mesh.quads, state.rho, title=f"{name.replace('_', ' ')}: two-way compliance "
-                    f"{figures['compliance']:.4g} J/m")
+        mesh = judge.model.mesh
+        plot_design(output / f"{name}.png", mesh.points + state.mesh_displacement, mesh.quads, state.rho,
+                    title=f"{name.replace('_', ' ')}: two-way compliance {figures['compliance']:.4g} J/m",
+                    outlines=region_outlines(mesh.quads, mesh.region))
     base = runs["one_way_control"]["compliance_two_way"]
     summary = {"runs": runs, "compliance_change_vs_control_percent":
                {k: 100 * (v["compliance_two_way"] / base - 1) for k, v in runs.items()}}

@@ -27,7 +27,7 @@ from pathlib import Path
 import tofsi
 from tofsi.commands.context import RunContext
 from tofsi.commands.optimize import Pictures
-from tofsi.errors import InputError
+from tofsi.errors import InputError, WriteError
 from tofsi.optimize import Optimizer
 from tofsi.plotting import plot_convergence
 from tofsi.provenance import run_record
@@ -80,5 +80,6 @@ if __name__ == "__main__":
     args = parser.parse_args()
     try:
         main(args.output, args.set, args.overwrite)
-    except InputError as err:
-        sys.exit(f"error: {err}")
+    except (InputError, WriteError) as err:          # bad input (2), a file not written (4)
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(err.exit_status)

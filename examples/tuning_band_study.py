@@ -30,6 +30,10 @@ or the band study split into runs side by side, then its tables from their CSV f
     python examples/tuning_band_study.py tables --merge results/b1 results/b2 --docs docs/mesh_motion_study.md
     python examples/tuning_band_study.py reach --movers linear yeoh --docs docs/mesh_motion_study.md
 
+Without a study named it runs a small one: the band study on the benchmark's
+smallest mesh (``band --refine 2.2 --no-problems``: about 10^4 nodes, three
+movers, under a minute on two cores).
+
 Times are the CPU time of the process (wall time beside it): on a shared machine
 it is the fair measure of the work.
 
@@ -306,8 +310,9 @@ def update_docs(path: Path, parts: dict) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("study", choices=["tuning", "band", "reach", "all", "tables"],
-                        help="tables: rebuild the tables from the CSV files of earlier runs")
+    parser.add_argument("study", nargs="?", choices=["tuning", "band", "reach", "all", "tables"],
+                        help="tables: rebuild the tables from the CSV files of earlier runs "
+                             "(none: the band study on the benchmark's smallest mesh)")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes of the grid search")
     parser.add_argument("--refine", type=float, nargs="*", default=REFINE,
                         help="band: the benchmark's mesh refinements (none: skip the benchmark)")
@@ -323,6 +328,10 @@ def main() -> None:
                         help="tables: also the band.csv of these folders (a band study split into "
                              "runs by --movers / --refine / --no-problems)")
     args = parser.parse_args()
+    if args.study is None:                          # the small default: one benchmark mesh
+        args.study, args.refine, args.no_problems = "band", args.refine[:1], True
+        print(f"no study named: the band study at the benchmark mesh refinement {args.refine[0]:g} "
+              "(see --help for the others)", flush=True)
     parts = {}
     previous = args.output / "tables.md"
     if previous.is_file():                          # keep the other study's tables

@@ -27,6 +27,7 @@ from typing import Callable, ClassVar
 import numpy as np
 
 from movers.blend import Blend, node_scale
+from movers.failure import at
 from tofsi import quality
 from tofsi.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector, element_dofs
@@ -79,6 +80,8 @@ class MotionProblem:
         (a mover whose equations break down at inversion still raises)
     linear_algebra : the model's :class:`tofsi.linalg.LinearAlgebra` (direct backend and
         threads), None for the process default
+    element_ids : (Em,) the mesh's number of each moving quad (what diagnostics name);
+        default ``0 .. Em-1``
     """
 
     points: np.ndarray
@@ -89,8 +92,13 @@ class MotionProblem:
     blend: np.ndarray | None = None
     accept_inverted: bool = False
     linear_algebra: object = None
+    element_ids: np.ndarray | None = None
 
     def __post_init__(self):
+        if self.element_ids is None:
+            object.__setattr__(self, "element_ids", np.arange(len(self.quads)))
+        if len(self.element_ids) != len(self.quads):
+            raise ValueError("element_ids needs one number per moving quad")
         n = self.points.shape[0]
         used = np.zeros(n, dtype=bool)
         used[self.quads.ravel()] = True
@@ -139,7 +147,7 @@ class MotionProblem:
         j = np.repeat(np.arange(mesh.ny + 1), mesh.nx + 1)
         return cls(points=mesh.points, quads=mesh.quads[moving], fixed_nodes=fixed_nodes,
                    stiffening=stiffening, grid=np.column_stack([2 * i, 2 * j]), blend=blend,
-                   linear_algebra=linear_algebra)
+                   linear_algebra=linear_algebra, element_ids=np.arange(len(mesh.quads))[moving])
 
     def with_data(self, stiffening=None, blend=None) -> "MotionProblem":
         """The same mesh with other stiffening factors or blend (the cached operators are kept)."""
@@ -186,11 +194,12 @@ class MoveResult:
 
 
 def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
-    """Quality summary of the moving quads at displacement ``x`` ``(n, 2)``."""
+    """Quality summary of the moving quads at displacement ``x`` ``(n, 2)``; the worst element
+    by the mesh's numbering (``problem.element_ids``), at its reference centre [m]."""
     s = quality.summary(problem.points, problem.points + x, problem.quads)
     return {"load": float(load), "min_skewness": s.min_skewness,
             "min_area_change": s.min_area_change, "max_area_change": s.max_area_change,
-            "n_inverted": s.n_inverted, "worst_element": s.min_skewness_element,
+            "n_inverted": s.n_inverted, "worst_element": int(problem.element_ids[s.min_skewness_element]),
             "worst_location": list(s.min_skewness_location)}
 
 
@@ -365,16 +374,29 @@ class Mover(ABC):
         return target, time.perf_counter()
 
     @staticmethod
-    def _fail(report: MoveReport, problem: MotionProblem, x: np.ndarray, message: str, t0: float):
+    def _fail(report: MoveReport, problem: MotionProblem, x: np.ndarray | None, message: str, t0: float,
+              load: float = np.nan, broken: dict | None = None):
+        """Raise the failure: ``message`` says what failed (and which element, where one did:
+        ``broken``, kept in the diagnostic as ``broken_element``); ``x`` is the last accepted
+        displacement at ``load`` (None: none is known), whose worst element the message adds
+        only where the mesh had moved."""
         report.converged = False
         report.message = message
         report.wall_time_s = time.perf_counter() - t0
-        worst = quality_record(problem, x.reshape(-1, 2), np.nan)
-        diagnostic = {"report": report.as_dict(), "quality": worst}
-        where = (f"; worst element {worst['worst_element']} (skewness {worst['min_skewness']:.3g}) at "
-                 f"({worst['worst_location'][0]:.3g}, {worst['worst_location'][1]:.3g}) m")
+        diagnostic = {"report": report.as_dict(), **({"broken_element": broken} if broken else {})}
+        where, state = "", None
+        if x is not None:
+            state = x.reshape(-1, 2)
+            worst = quality_record(problem, state, load)
+            diagnostic["quality"] = worst
+            if not np.any(x):
+                where = "; no load step was accepted (the mesh is as it was)"
+            else:
+                where = (f"; at the last accepted load {load:.4g} the worst element is "
+                         f"{worst['worst_element']} (skewness {worst['min_skewness']:.3g}) at "
+                         f"{at(worst['worst_location'])}")
         log.info("%s mover failed: %s", report.mover, message)   # the caller reports the error
-        raise NumericalError(f"{report.mover} mover: {message}{where}", diagnostic, state=x.reshape(-1, 2))
+        raise NumericalError(f"{report.mover} mover: {message}{where}", diagnostic, state=state)
 
     @staticmethod
     def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float,
@@ -390,7 +412,8 @@ class Mover(ABC):
         elif last["n_inverted"]:
             report.converged = False
             report.message = (f"{last['n_inverted']} inverted element(s); worst element "
-                              f"{last['worst_element']} at {last['worst_location']}")
+                              f"{last['worst_element']} (skewness {last['min_skewness']:.2g}) at "
+                              f"{at(last['worst_location'])}")
             raise NumericalError(f"{report.mover} mover: {report.message}",
                                  {"report": report.as_dict(), "quality": last},
                                  state=x.reshape(-1, 2))

@@ -63,7 +63,7 @@ class LinearElasticMover(Mover):
             x, states = run_increments(problem, target, self.params.increments,
                                        self.element_matrices(), solver, report, progress, blend)
         except NumericalError as err:
-            self._fail(report, problem, np.zeros_like(target), str(err), t0)
+            self._fail(report, problem, None, str(err), t0)
         return self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
                             target=target)
 

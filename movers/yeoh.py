@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult, element_apply, quality_record
+from movers.failure import Trouble, broken_element, describe_break
 from movers.incremental import system
 from movers.yeoh_kernel import YeohKernel
 from tofsi import quality
@@ -179,8 +180,8 @@ class YeohMover(Mover):
                 step *= 0.5
                 log.info("yeoh: increment at load %.4g failed (%s); cut to %.3g", load, why, step)
                 if step < p.min_increment or report.cutbacks > p.max_cutbacks:
-                    self._fail(report, problem, x, f"no convergence at load {load:.4g} after "
-                               f"{report.cutbacks} cutbacks (last: {why})", t0)
+                    self._fail(report, problem, x, f"no convergence beyond load {load:.4g} after "
+                               f"{report.cutbacks} cutbacks (last: {why})", t0, load, why.broken)
                 continue
             x, state, load = x_new, state_new, load + step
             self._record(report, problem, x, load, p.increments, progress)
@@ -268,7 +269,9 @@ class YeohMover(Mover):
             return x0, state0, [float(np.linalg.norm(r0))], ""      # already there (a warm start)
         Re, Ke, det_min = eqs.kernel.evaluate(x)
         if Re is None or not self._valid(eqs.kernel, x, det_min):
-            return None, None, history, "predictor inverts an element"
+            broken = broken_element(eqs.kernel.problem, x, det_min)
+            return None, None, history, Trouble(f"the predictor to load {load:.4g} {describe_break(broken)}",
+                                                broken)
         for it in range(p.max_newton + 1):
             r = eqs.residual(Re, x, load)
             norm = float(np.linalg.norm(r))
@@ -276,18 +279,25 @@ class YeohMover(Mover):
             target = self._tolerance(eqs, Re, scale)
             log.info("yeoh Newton %d: |R| = %.3e (target %.2e, scale %.2e)", it, norm, target, scale)
             if not np.isfinite(norm):
-                return None, None, history, "non-finite residual"
+                return None, None, history, Trouble(f"non-finite residual at load {load:.4g} on a valid "
+                                                    "mesh (no element inverted)")
             if norm <= target:
                 return x, (Re, Ke), history, ""
             if it == p.max_newton:
-                return None, None, history, f"{p.max_newton} Newton iterations"
+                return None, None, history, Trouble(f"{p.max_newton} Newton iterations at load {load:.4g} "
+                                                    "did not reach the tolerance (no element inverted)")
             dx = solver.solve(eqs.matrix(Ke), -r, rtol=forcing_term(history, target))
             dx[bc.fixed] = 0.0
             report.linear_solves += 1
             report.newton_iterations += 1
             x_new = self._line_search(eqs, x, dx, r, norm, load)
             if x_new is None:
-                return None, None, history, "line search found no decrease"
+                full = x + dx                             # what the Newton step does to the mesh
+                broken = broken_element(eqs.kernel.problem, full, eqs.kernel.evaluate(full, tangent=False)[2])
+                what = (f"the full Newton step {describe_break(broken)}" if broken
+                        else "Newton diverged on a valid mesh (no element inverted)")
+                return None, None, history, Trouble(f"line search found no decrease at load {load:.4g}: {what}",
+                                                    broken)
             x = x_new
             Re, Ke, _ = eqs.kernel.evaluate(x)
-        return None, None, history, "unreachable"
+        return None, None, history, Trouble("unreachable")

@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from conftest import scene_path
@@ -49,6 +50,17 @@ CASES = [
     ("move", FOIL, ["deformation.translation=0.6"], "deformation.translation"),
     ("move", FOIL, ["deformation.mode=rotation", "deformation.rotation_deg=90",
                     "geometry.solids=[[0.2, 1.8, 0.45, 0.55]]"], "deformation.rotation_deg"),
+    # issue 25: passed validation, then crashed or did something else than asked
+    ("solve", OPT, ["structure.clamped=[]"], "structure.clamped"),            # ValueError in concatenate
+    ("optimize", OPT, ["structure.clamped=[]"], "structure.clamped"),
+    ("mesh", FOIL, ['name="a\nb"'], "name"),                                   # a folder with a newline
+    ("move", FOIL, ["effects.mesh_motion=spring", "mover.name=yeoh"], "mover.name"),    # last one won
+    ("move", FOIL, ["mover.name=yeoh", "effects.mesh_motion=spring"], "effects.mesh_motion"),
+    ("move", FOIL, ["mover.layers[0]=2"], "mover.layers[0]"),                  # "unknown key"; empty list
+    ("move", FOIL, ["geometry.solids[1]=[0.1, 0.2, 0.1, 0.2]"], "geometry.solids[1]"),  # one solid only
+    ("move", FOIL, ["mover.layers=[1e30]"], "mover.layers[0]"),                # exit 3 at element 0
+    ("tune", FOIL, ["tune.max_factor=1e9"], "tune.max_factor"),
+    ("study", FOIL, ["--max-memory", "nan", "--sweep", "mover.layers[0]=1:2:1"], "--max-memory"),
 ]
 
 
@@ -70,10 +82,12 @@ def test_bad_values_exit_2_naming_the_key_and_write_nothing(command, scene, over
     assert os.listdir(tmp_path) == []                                  # nothing partial
 
 
-@pytest.mark.parametrize("kind", ["missing", "directory", "not toml", "binary"])
+@pytest.mark.parametrize("kind", ["missing", "directory", "not toml", "binary", "device"])
 def test_unreadable_or_missing_scene_files_exit_2(kind, tmp_path):
     path = tmp_path / "scene.toml"
-    if kind == "directory":
+    if kind == "device":                            # said "no such file"
+        path = "/dev/null"
+    elif kind == "directory":
         path.mkdir()
     elif kind == "not toml":
         path.write_text("name = 'x'\n[mesh\nh_min = 1\n")
@@ -82,6 +96,8 @@ def test_unreadable_or_missing_scene_files_exit_2(kind, tmp_path):
     run = tofsi(["mesh", str(path), "--output", str(tmp_path / "out")], tmp_path)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
     assert "scene" in run.stderr and not (tmp_path / "out").exists()
+    if kind == "device":
+        assert "not a regular file" in run.stderr
 
 
 @pytest.mark.parametrize("args", [["mesh"], ["nonsense", FOIL], ["mesh", FOIL, "--set"],
@@ -104,9 +120,14 @@ def write_design(path, kind, n):
         np.save(path, np.array([{"a": 1}], dtype=object), allow_pickle=True)
     elif kind == "directory":
         path.mkdir()
+    elif kind == "strings":
+        np.save(path, np.array(["0.2"] * n))
+    elif kind == "complex":
+        np.save(path, np.full(n, 0.2 + 0j))
 
 
-@pytest.mark.parametrize("kind,says", [("outside [0, 1]", "not clipped"), ("text", "not a NumPy .npy file"),
+@pytest.mark.parametrize("kind,says", [("strings", "holds text"), ("complex", "holds complex numbers"),
+                                       ("outside [0, 1]", "not clipped"), ("text", "not a NumPy .npy file"),
                                        ("wrong size", "needs"), ("pickle", "not a NumPy .npy file"),
                                        ("directory", "is a directory")])
 def test_a_bad_saved_design_exits_2_with_a_plain_message(kind, says, tmp_path):
@@ -172,3 +193,369 @@ def test_json_errors_on_stdout(args, tmp_path):
     assert run.returncode == 2
     payload = json.loads(run.stdout)
     assert payload["exit_status"] == 2 and payload["error"] in run.stderr
+
+
+# ---- issue 25: results that survive a full disk -------------------------------------------------
+TINY_OPT = ["--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1", "--set", "design.filter_radius=0.15",
+            "--set", "design.stage_iterations=2"]
+
+
+@pytest.fixture
+def small_filesystem(tmp_path):
+    """``make(kb)``: a tmpfs of ``kb`` KB under tmp_path (skipped where mounting is not allowed)."""
+    mounted = []
+
+    def make(kb):
+        where = tmp_path / f"fs{len(mounted)}"
+        where.mkdir()
+        run = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={kb}k", "tmpfs", str(where)],
+                             capture_output=True, text=True)
+        if run.returncode != 0:
+            pytest.skip(f"cannot mount a small tmpfs here ({(run.stderr or 'mount failed').strip()}); "
+                        "the file-size limit tests cover the same path")
+        mounted.append(where)
+        return where
+    yield make
+    for where in mounted:
+        subprocess.run(["umount", str(where)], capture_output=True)
+
+
+def limited(args, cwd, max_bytes):
+    """``tofsi ARGS`` with files limited to ``max_bytes`` (ulimit -f): writes beyond it fail
+    with EFBIG (Python ignores SIGXFSZ)."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (max_bytes, max_bytes))
+    return subprocess.run([sys.executable, "-m", "tofsi.cli", *args], capture_output=True, text=True,
+                          cwd=cwd, preexec_fn=limit)
+
+
+def assert_write_failure(run, folder, failed_name):
+    """Exit 4 in one line naming the file, the reason and what was kept; run.json says so and
+    lists exactly the complete files kept."""
+    import json
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 4, run.stderr
+    assert "Traceback" not in run.stderr and lines[-1].startswith("tofsi: write failure: could not write")
+    line = lines[-1]
+    assert failed_name in line and "kept" in line and "run.json records the failure" in line
+    record = json.loads((folder / "run.json").read_text())
+    assert record["exit_status"] == 4 and record["status"] == "write failure"
+    assert failed_name in record["write_failure"]["file"] and record["write_failure"]["error"]
+    names = sorted(n for n in os.listdir(folder) if not n.startswith("."))
+    assert sorted(record["files"]) == names and all(n in line for n in names)
+    assert not any(n.startswith(".") for n in os.listdir(folder))      # no temporary file, no reserve
+    return record
+
+
+def test_a_full_disk_is_refused_before_computing(small_filesystem, tmp_path):
+    """Issue 25: solve into a 200 KB file system computed, then died with OSError 28. The
+    estimate (1 MB for 3200 elements) refuses it before any solve, in one line."""
+    fs = small_filesystem(200)
+    run = tofsi(["solve", OPT, "--output", str(fs / "out")], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr          # no "solving ..." line
+    assert "--output" in lines[0] and "free" in lines[0] and "MB" in lines[0]
+    assert os.listdir(fs) == []
+
+
+def test_a_disk_that_fills_during_the_run_ends_in_one_line_and_keeps_the_complete_files(small_filesystem,
+                                                                                         tmp_path):
+    """200 KB hold solution.vtu (55 KB) but not its pictures (120 KB each): exit 4 naming the
+    picture; solution.vtu is complete (meshio reads it) and run.json records the failure."""
+    import meshio
+    fs = small_filesystem(200)
+    run = tofsi(["solve", OPT, "--output", str(fs / "out"), *TINY_OPT], tmp_path)
+    assert_write_failure(run, fs / "out", "solution_")
+    assert "No space left on device" in run.stderr
+    assert meshio.read(fs / "out" / "solution.vtu").cells[0].data.shape[1] == 9
+
+
+def test_a_file_size_limit_below_the_largest_file_is_refused_before_computing(tmp_path):
+    """ulimit -f 8: OSError 27 after the solve; now exit 2 naming the limit."""
+    run = limited(["solve", OPT, "--output", "out"], tmp_path, 8 * 1024)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "ulimit -f" in lines[0] and "solution.vtu" in lines[0] and os.listdir(tmp_path) == []
+
+
+def test_a_file_size_limit_hit_during_an_optimization_keeps_the_iterations_done(tmp_path):
+    """An 80 KB limit passes the estimate (pictures about 0.1 MB, refused below 50 KB) but not
+    the first design picture (about 120 KB): exit 4 naming it; the design, the history and the
+    checkpoint written before it are complete, and --resume continues from them without the limit."""
+    import json
+    import numpy as np
+    run = limited(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3"],
+                  tmp_path, 80 * 1024)
+    assert_write_failure(run, tmp_path / "out", "design_0000.png")
+    assert "File too large" in run.stderr
+    history = json.loads((tmp_path / "out" / "history.json").read_text())
+    assert [h["iteration"] for h in history] == [0]
+    import tofsi as toolkit
+    n = toolkit.Problem(toolkit.load_scene(OPT, [a for a in TINY_OPT if a != "--set"])).n_design
+    design = np.load(tmp_path / "out" / "design.npy")
+    assert design.shape == (n,) and 0 <= design.min() and design.max() <= 1
+    with np.load(tmp_path / "out" / "checkpoint.npz") as npz:
+        assert json.loads(str(npz["meta"]))["history"][0]["objective"] == history[0]["objective"]
+    again = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
+                   "--resume"], tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert len(json.loads((tmp_path / "out" / "history.json").read_text())) == 3
+
+
+def test_a_scene_name_too_long_for_a_folder_is_refused_before_computing(tmp_path):
+    """--set name=<300 characters> with the default results/<name>: OSError 36 after the run."""
+    run = tofsi(["move", FOIL, "--set", "name=" + "a" * 300], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert lines[0].startswith("tofsi: error: name = ") and "300 bytes" in lines[0] and "255" in lines[0]
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("output,says", [("x" * 300 + "/out", "300 bytes"), ("a\nb", "control character"),
+                                         ("/" + "d/" * 2100, "exceed")])
+def test_output_folder_names_the_file_system_cannot_take_are_refused(output, says, tmp_path):
+    run = tofsi(["mesh", FOIL, "--output", output], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "--output" in lines[0] and says in lines[0] and os.listdir(tmp_path) == []
+
+
+# ---- issue 25: one run per folder ---------------------------------------------------------------
+def test_two_runs_started_at_once_into_one_folder_one_is_refused(tmp_path):
+    """Both exited 0 and the first run's results were silently gone. Now one runs, the other
+    exits 2 naming it, and the folder holds the winner's run alone."""
+    import json
+    args = ["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=2", "-q"]
+    runs = [subprocess.Popen([sys.executable, "-m", "tofsi.cli", *args, "--set", f"design.volume_fraction={vf}"],
+                             cwd=tmp_path, stderr=subprocess.PIPE, text=True) for vf in (0.2, 0.3)]
+    results = [(p.wait(), p.stderr.read()) for p in runs]
+    assert sorted(status for status, _ in results) == [0, 2], results
+    winner = [vf for vf, (status, _) in zip((0.2, 0.3), results) if status == 0][0]
+    loser = [err for status, err in results if status == 2][0]
+    assert len(loser.strip().splitlines()) == 1 and "tofsi optimize" in loser
+    record = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert f"design.volume_fraction={winner}" in record["overrides"] and record["exit_status"] == 0
+    assert ".tofsi.lock" not in os.listdir(tmp_path / "out")
+
+
+def wait_for(path, timeout=60.0):
+    import time
+    t0 = time.monotonic()
+    while not path.exists():
+        assert time.monotonic() - t0 < timeout, f"{path} did not appear"
+        time.sleep(0.05)
+
+
+def test_a_second_run_into_a_busy_folder_exits_2_naming_the_first(tmp_path):
+    import json
+    import signal
+    first = subprocess.Popen([sys.executable, "-m", "tofsi.cli", "optimize", OPT, "--output", "out", *TINY_OPT,
+                              "--set", "optimizer.max_iter=40", "-q"], cwd=tmp_path,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for(tmp_path / "out" / ".tofsi.lock")
+        second = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, "--overwrite"], tmp_path)
+        lines = second.stderr.strip().splitlines()
+        assert second.returncode == 2 and len(lines) == 1, second.stderr
+        assert f"in use by tofsi optimize (pid {first.pid} on host" in lines[0]
+    finally:
+        first.send_signal(signal.SIGTERM)
+        status = first.wait()
+    assert status == 143, first.stderr.read()
+    assert not (tmp_path / "out" / ".tofsi.lock").exists()
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["status"] == "terminated"
+
+
+def test_the_lock_of_a_killed_run_is_taken_over(tmp_path):
+    """SIGKILL leaves the lock file; its record lock died with the process, so the next run
+    (here --resume) takes it over and says whose it was."""
+    import signal
+    first = subprocess.Popen([sys.executable, "-m", "tofsi.cli", "optimize", OPT, "--output", "out", *TINY_OPT,
+                              "--set", "optimizer.max_iter=40", "-q"], cwd=tmp_path)
+    wait_for(tmp_path / "out" / "checkpoint.npz")
+    first.send_signal(signal.SIGKILL)
+    first.wait()
+    assert (tmp_path / "out" / ".tofsi.lock").exists()
+    again = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
+                   "--resume"], tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert f"took over the lock of tofsi optimize (pid {first.pid}" in again.stderr
+    assert not (tmp_path / "out" / ".tofsi.lock").exists()
+
+
+def test_one_process_cannot_lock_a_folder_twice(tmp_path):
+    from tofsi.errors import InputError
+    from tofsi.run_folder import RunFolder
+    first = RunFolder(tmp_path / "o", program="a").check()
+    with pytest.raises(InputError, match="in this process"):
+        RunFolder(tmp_path / "o", program="b").check()
+    first.finish(0)
+    RunFolder(tmp_path / "o", program="b").check().finish(0)
+    assert not (tmp_path / "o").exists()                  # nothing written: the folder goes again
+
+
+# ---- issue 25: sweeps and options refused before computing --------------------------------------
+@pytest.mark.parametrize("sweep,says", [("mover.layers[0]=nan:1:0.1", "not a finite number"),
+                                        ("mover.layers[0]=1:inf:1", "not a finite number"),
+                                        ("mover.layers[0]=1:1e9:1", "at most 100000"),
+                                        ("mover.yeoh.A20=1e-300:1e300:*1.0000001", "at most 100000")])
+def test_non_finite_and_oversized_sweeps_are_refused_at_once(sweep, says, tmp_path):
+    """nan gave a traceback; 1:1e9:1 made a 10^9-value array for 40 s before refusing."""
+    import time
+    t0 = time.perf_counter()
+    run = tofsi(["study", FOIL, "--output", "out", "--sweep", sweep], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and "--sweep" in lines[0] and says in lines[0], run.stderr
+    assert time.perf_counter() - t0 < 20 and os.listdir(tmp_path) == []
+
+
+def test_a_grid_of_too_many_points_is_refused_before_it_is_made():
+    from tofsi.errors import InputError
+    from tofsi.study import Sweep, points
+    sweeps = [Sweep(f"k{i}", tuple(range(1000))) for i in range(3)]          # 10^9 points
+    with pytest.raises(InputError, match="1,000,000,000 points"):
+        points(sweeps)
+    assert len(points(sweeps[:1])) == 1000
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
+def test_max_memory_must_be_a_positive_number_of_gb(value, tmp_path):
+    """nan was accepted; -1 was refused naming mesh.h_min."""
+    run = tofsi(["move", FOIL, "--output", "out", "--max-memory", value], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and lines[0].startswith("tofsi: error: --max-memory")
+    assert os.listdir(tmp_path) == []
+
+
+def test_resume_and_overwrite_together_are_refused(tmp_path):
+    run = tofsi(["optimize", OPT, "--output", "out", "--resume", "--overwrite"], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1 and "--resume" in lines[0] and "--overwrite" in lines[0]
+
+
+@pytest.mark.parametrize("example", ["mesh_motion_study.py", "tuning_band_study.py"])
+def test_the_study_examples_run_without_arguments(example, tmp_path):
+    """They exited 2 asking for a study name; without one they run their small default."""
+    from conftest import SCENES
+    run = subprocess.run([sys.executable, str(SCENES.parent / example)], capture_output=True, text=True,
+                         cwd=tmp_path, env={**os.environ, "TOFSI_EXAMPLE_SMALL": "1"})
+    assert run.returncode == 0, run.stderr
+    made = {"mesh_motion_study.py": "results/mesh_motion_study/graded/triangulation.csv",
+            "tuning_band_study.py": "results/tuning_band_study/band.csv"}[example]
+    assert (tmp_path / made).is_file()
+
+
+def test_a_scene_file_of_megabytes_is_announced_before_it_is_read(tmp_path):
+    """A 10 MB scene read for minutes without a word; now a line says what is being read."""
+    scene = tmp_path / "big.toml"
+    scene.write_text(open(FOIL).read() + ("# padding\n" * 120_000))             # 1.2 MB
+    run = tofsi(["mesh", str(scene), "--output", "out", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1"],
+                tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.splitlines()[0] == f"reading the scene file {scene} (1 MB) ..."
+    quiet = tofsi(["mesh", str(scene), "--output", "out2", "-q", "--set", "mesh.h_min=0.1",
+                   "--set", "mesh.h_max=0.1"], tmp_path)
+    assert quiet.returncode == 0 and quiet.stderr == ""
+
+
+def test_one_list_entry_is_set_by_its_index():
+    """--set KEY[i]=V said "unknown key"; it replaces entry i of the scene's list."""
+    import tofsi as toolkit
+    both = toolkit.load_scene(FOIL, ["mover.layers=[1.5, 2.5]", "mover.layers[1]=3"])
+    assert both.mover.layers == (1.5, 3.0)
+    moved = toolkit.load_scene(FOIL, ["geometry.solids[0][1]=1.3"])
+    assert moved.geometry.solids == ((0.75, 1.3, 0.475, 0.525),)
+    assert moved == toolkit.load_scene(FOIL, ["geometry.solids=[[0.75, 1.3, 0.475, 0.525]]"])
+
+
+def test_thousands_of_rectangles_are_refused_before_the_mesh_is_graded(tmp_path):
+    """A 10 MB scene of 350k solids graded for minutes without a word (5000 solids would have
+    taken hours): the grid lines their edges need are counted first."""
+    import random
+    import re
+    import time
+    rnd = random.Random(1)
+    rows = []
+    for _ in range(5000):
+        x, y = rnd.uniform(0.1, 1.8), rnd.uniform(0.1, 0.8)
+        rows.append(f"[{x:.5f}, {x + 0.01:.5f}, {y:.5f}, {y + 0.01:.5f}]")
+    scene = tmp_path / "many.toml"
+    scene.write_text(re.sub(r"^solids = .*$", "solids = [" + ", ".join(rows) + "]", open(FOIL).read(),
+                            flags=re.M))
+    t0 = time.perf_counter()
+    run = tofsi(["mesh", str(scene), "--output", "out"], tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "geometry.solids" in lines[0] and "5000 rectangles" in lines[0] and "mesh.max_elements" in lines[0]
+    assert time.perf_counter() - t0 < 30 and not (tmp_path / "out").exists()
+
+
+# ---- issue 25: diagnostics that point at the failing element ------------------------------------
+FSI = str(scene_path("beam_in_channel_optimization_fsi"))
+
+
+def test_a_failed_two_way_solve_names_the_element_the_predictor_inverts(tmp_path):
+    """solve --stage last at E = 5 blamed "worst element 0 (skewness 1)": a perfect corner
+    element of the undeformed mesh. The message now names the element the mover's predictor
+    inverts; checked against the mesh: its number's reference centre is the one printed, and
+    it lies at the beam (within two elements of the solid), where the flow pushes."""
+    import json
+    import re
+    import tofsi as toolkit
+    from tofsi.channel import build_mesh
+    from tofsi.mesh import SOLID
+    mesh_args = ["mesh.h_min=0.05", "mesh.h_max=0.05", "structure.youngs_modulus=5"]
+    run = tofsi(["solve", FSI, "--stage", "last", "--output", "out", *[a for o in mesh_args for a in ("--set", o)]],
+                tmp_path)
+    assert run.returncode == 3, run.stderr
+    line = run.stderr.strip().splitlines()[-1]
+    assert "skewness 1)" not in line and "worst element 0 " not in line
+    found = re.search(r"inverts element (\d+) at \(([-\d.e]+), ([-\d.e]+)\) m \(skewness (-[\d.e]+)\)", line)
+    assert found, line
+    k, x, y = int(found[1]), float(found[2]), float(found[3])
+    mesh = build_mesh(*(lambda s: (s.geometry, s.mesh))(toolkit.load_scene(FSI, mesh_args)))
+    np.testing.assert_allclose(mesh.centroids[k], [x, y], rtol=5e-3, atol=1e-12)
+    solid = mesh.centroids[mesh.region == SOLID]
+    assert np.min(np.linalg.norm(solid - mesh.centroids[k], axis=1)) < 2 * 0.05
+    diagnostic = json.loads((tmp_path / "out" / "diagnostic.json").read_text())
+    assert diagnostic["broken_element"]["element"] == k and diagnostic["broken_element"]["skewness"] < 0
+
+
+def test_a_newton_that_stops_on_a_valid_mesh_says_no_element_failed(tmp_path):
+    """A Yeoh move out of Newton iterations: no element is blamed; the message says none
+    inverted."""
+    import json
+    run = tofsi(["move", FOIL, "--output", "out", "--set", "deformation.mode=rotation", "--set",
+                 "mover.yeoh.max_newton=1", "--set", "mover.yeoh.max_cutbacks=0", "--set",
+                 "mover.yeoh.increments=4"], tmp_path)
+    assert run.returncode == 3, run.stderr
+    line = run.stderr.strip().splitlines()[-1]
+    assert "1 Newton iterations at load 0.25 did not reach the tolerance (no element inverted)" in line
+    assert "worst element" not in line and "no load step was accepted" in line, line
+    assert "broken_element" not in json.loads((tmp_path / "out" / "diagnostic.json").read_text())
+
+
+def test_an_inverted_mesh_message_rounds_its_coordinates(tmp_path):
+    """failed_mesh.png's title carried 16-digit coordinates ("at [1.2762882690614328, ...]")."""
+    import re
+    run = tofsi(["move", FOIL, "--output", "out", "--set", "mover.name=spring", "--set", "deformation.mode=rotation",
+                 "--set", "deformation.rotation_deg=45", "--set", "mover.spring.increments=1",
+                 "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.1"], tmp_path)
+    assert run.returncode == 3, run.stderr
+    assert re.search(r"worst element \d+ \(skewness -?[\d.]+\) at \([\d.]+, [\d.]+\) m", run.stderr), run.stderr
+    assert not re.search(r"\d\.\d{5,}", run.stderr.split("(diagnostic")[0])
+
+
+def test_the_readme_exit_status_table_lists_every_status():
+    """Every status the command line returns (run.json's status words, the errors' exit
+    statuses) has a row in README's table, and the table has no other."""
+    import re
+    from pathlib import Path
+    from tofsi import errors
+    from tofsi.run_folder import STATUS
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    rows = {int(m) for m in re.findall(r"^\| (\d+) \| ", readme, flags=re.M)}
+    raised = {cls.exit_status for cls in (errors.InputError, errors.NumericalError, errors.WriteError)}
+    assert rows == set(STATUS) and raised <= rows and {0, 1, 130, 143} <= rows

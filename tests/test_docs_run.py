@@ -23,6 +23,15 @@ EXAMPLE_ARGS = {"optimize_beam_in_channel.py": [], "optimize_fsi.py": [], "compa
                 "tuning_band_study.py": ["all", "--jobs", "1"]}
 
 
+PICTURES = re.findall(r"\]\(docs/img/optimization/([\w-]+)/([\w.-]+\.png)\)", README)
+"""README pictures an example writes: (its default output folder's name, the file's name)."""
+
+
+def default_output(script: str) -> str | None:
+    found = re.search(r'default=Path\("results/([\w-]+)"\)', (ROOT / "examples" / script).read_text())
+    return found[1] if found else None
+
+
 def env():
     return {**os.environ, "PYTHONPATH": str(ROOT), "TOFSI_EXAMPLE_SMALL": "1"}
 
@@ -71,3 +80,14 @@ def test_every_example_runs_at_a_small_size(script, tmp_path):
                           "--output", str(out)], capture_output=True, text=True, cwd=tmp_path, env=env())
     assert run.returncode == 0, run.stderr
     assert out.is_dir() and any(out.rglob("*.*"))
+    for folder, name in PICTURES:                        # README's pictures carry the names written
+        if folder == default_output(script):
+            assert (out / name).is_file(), f"README shows {name}, which {script} does not write"
+
+
+def test_readme_pictures_are_named_as_an_example_writes_them():
+    """The headline's pictures were fsi_design.png while the example writes design_final.png: each
+    README picture of a run sits in a folder named as an example's results folder."""
+    folders = {default_output(p.name) for p in (ROOT / "examples").glob("*.py")}
+    assert PICTURES and {folder for folder, _ in PICTURES} <= folders
+    assert len(re.findall(r"\]\(docs/img/optimization/", README)) == len(PICTURES)

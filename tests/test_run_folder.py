@@ -120,6 +120,8 @@ def test_examples_replace_their_own_run_but_not_another(tmp_path):
     folder.finish(0)
     again = RunFolder(own, program="examples/x.py", replaces_own=True).check()     # its own: fine
     again.begin({"program": "examples/x.py"})
+    assert [n for n in os.listdir(own) if not n.startswith(".")] == ["run.json"]   # lock, reserve: hidden
+    again.finish(0)
     assert os.listdir(own) == ["run.json"]
     with pytest.raises(InputError, match="examples/x.py"):
         RunFolder(own, program="tofsi optimize").check()

@@ -3,6 +3,7 @@ cannot follow the structure stops the run with exit 3 naming the iteration and t
 after the earlier iterations are checkpointed."""
 
 import json
+import re
 
 import numpy as np
 
@@ -36,7 +37,8 @@ def test_a_mover_that_cannot_follow_stops_the_run_naming_the_iteration_and_eleme
     run = optimize(cli, tmp_path, "structure.youngs_modulus=1.0")      # the structure moves metres
     assert run.returncode == 3
     line = [ln for ln in run.stderr.splitlines() if "numerical failure" in ln][0]
-    assert "design iteration 2" in line and "mover" in line and "worst element" in line
+    assert "design iteration 2" in line and "mover" in line
+    assert re.search(r"inverts element \d+ at \([\d.]+, [\d.]+\) m", line), line     # the one that failed
     rows = json.loads((tmp_path / "out" / "history.json").read_text())
     assert len(rows) == 2                                              # checkpointed before it
     assert (tmp_path / "out" / "checkpoint.npz").is_file()

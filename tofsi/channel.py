@@ -15,9 +15,29 @@ def inside(points: np.ndarray, rect) -> np.ndarray:
     return (points[:, 0] > x0) & (points[:, 0] < x1) & (points[:, 1] > y0) & (points[:, 1] < y1)
 
 
+def distinct(length: float, values) -> int:
+    """Distinct positions among ``values`` and the ends of ``[0, length]`` (to 1e-12 length)."""
+    cuts = np.unique(np.clip(np.r_[0.0, length, np.asarray(values, float)], 0.0, length))
+    return int(np.sum(np.r_[True, np.diff(cuts) > 1e-12 * length]))
+
+
+def check_lines(geometry, settings, rects) -> None:
+    """Refuse, before grading, rectangles whose edges alone need more than ``mesh.max_elements``:
+    the mesh has a grid line at every edge, so at least (distinct x - 1) (distinct y - 1)
+    elements (grading a hundred thousand rectangles would take hours first)."""
+    nx = distinct(geometry.length, [v for r in rects for v in r[:2]]) - 1
+    ny = distinct(geometry.height, [v for r in rects for v in r[2:]]) - 1
+    if nx * ny > settings.max_elements:
+        key = "geometry.solids" if geometry.solids else "geometry.holes"
+        raise InputError(key, f"{len(rects)} rectangles", f"their edges need grid lines that make at "
+                         f"least {nx:,} x {ny:,} = {nx * ny:,} elements, more than mesh.max_elements = "
+                         f"{settings.max_elements:,}; use fewer rectangles (or edges on shared lines)")
+
+
 def mesh_axes(geometry, settings) -> tuple[np.ndarray, np.ndarray]:
     """The node coordinates along x and y of the scene's mesh (cheap: no mesh is built)."""
     rects = list(geometry.solids) + list(geometry.holes) + ([geometry.design] if geometry.design else [])
+    check_lines(geometry, settings, rects)
     xs = graded_axis(geometry.length, [v for r in rects for v in r[:2]],
                      [tuple(r[:2]) for r in geometry.solids],
                      settings.h_min, settings.h_max, settings.growth)

@@ -2,23 +2,31 @@
 
 Exit status: 0 success, 1 a failed gradient check, 2 bad input (one line
 naming the key, the value and what is allowed; nothing is written), 3
-numerical failure (a diagnostic file is written to the output folder), 5 a
-result that is no physical state (``solve``: a small-strain displacement
-beyond the channel; written, with ``physical: false``), 130 interrupted
-(Ctrl-C), 143 terminated (SIGTERM, handled like Ctrl-C).
+numerical failure (a diagnostic file is written to the output folder), 4 a
+result file could not be written (disk full, a file-size limit: one line
+naming the file, the reason and the complete files kept; ``run.json`` says
+``"status": "write failure"``), 5 a result that is no physical state
+(``solve``: a small-strain displacement beyond the channel; written, with
+``physical: false``), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM,
+handled like Ctrl-C).
 
 Before any computation the output folder is checked: it must be writable,
-and a fresh run refuses a folder holding another run's files unless
-``--overwrite`` (``--resume`` continues the run in it). Every folder a run
-writes gets a ``run.json`` with the run's provenance (:mod:`tofsi.provenance`).
+with room for the run's files (:mod:`tofsi.output_size`), not in use by
+another run (a lock, :mod:`tofsi.folder_lock`), and a fresh run refuses a
+folder holding another run's files unless ``--overwrite`` (``--resume``
+continues the run in it). Every folder a run writes gets a ``run.json``
+with the run's provenance (:mod:`tofsi.provenance`).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import json
 import logging
+import math
+import os
 import signal
 import sys
 import tempfile
@@ -28,9 +36,10 @@ from pathlib import Path
 import tofsi
 from tofsi.commands.context import RunContext
 from tofsi.commands.hints import hint
-from tofsi.errors import InputError, NumericalError
+from tofsi.errors import InputError, NumericalError, WriteError
 from tofsi.memory import check as check_memory
 from tofsi.output import default_output, to_json, write_json
+from tofsi.output_size import check_room
 from tofsi.provenance import run_record
 from tofsi.run_folder import RunFolder
 from tofsi.scene import load_scene
@@ -46,6 +55,8 @@ COMMANDS = {
     "tune": "stiffening factors tuned by gradients (NLopt) for the best mesh quality of the scene's motion",
 }
 QUALITY = ("min_skewness", "n_inverted", "min_area_change", "max_area_change")
+WRITE_ERRNOS = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.ENAMETOOLONG, errno.EROFS)
+LARGE_SCENE = 1e6             # bytes: a scene file this large is announced before it is read
 LOGGERS = ("tofsi", "movers", "adjoint")          # -v raises only these; third parties stay quiet
 
 
@@ -75,7 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--overwrite", action="store_true",
                        help="replace the files of a previous run in the output folder")
         p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                       help="override a scene value by dotted key, e.g. --set mover.name=spring")
+                       help="override a scene value by dotted key, e.g. --set mover.name=spring; "
+                            "KEY[i]=VALUE replaces entry i of a list, e.g. --set mover.layers[0]=2")
         p.add_argument("--json", action="store_true",
                        help="print one JSON object with the run's figures on stdout")
         p.add_argument("-v", "--verbose", action="count", default=0,
@@ -147,6 +159,26 @@ def scene_overrides(args) -> list[str]:
     return overrides
 
 
+def check_options(args) -> None:
+    """Command-line values that no scene key checks."""
+    gb = args.max_memory
+    if gb is not None and not (math.isfinite(gb) and gb > 0):
+        raise InputError("--max-memory", gb, "allowed: a memory limit in GB > 0")
+    if getattr(args, "resume", False) and args.overwrite:
+        raise InputError("--resume", True, "cannot go with --overwrite (--resume continues the run "
+                         "in --output, --overwrite replaces it); give one of them")
+
+
+def announce_large_scene(path, quiet: bool) -> None:
+    """A line on stderr before reading a scene file of megabytes (it takes seconds)."""
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return
+    if size > LARGE_SCENE and not quiet:
+        print(f"reading the scene file {path} ({size / 1e6:.0f} MB) ...", file=sys.stderr, flush=True)
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
@@ -166,51 +198,101 @@ def _error(line: str, payload: dict, as_json: bool, status: int) -> int:
 
 
 def _run(args, argv) -> int:
-    ctx, scene = None, None
+    ctx, scene, folder = None, None, None
     try:
-        overrides = scene_overrides(args)
-        scene = load_scene(args.scene, overrides)
-        if args.command != "mesh":
-            check_memory(scene, args.command, args.max_memory)     # before any factorization
-            configure_linear_algebra(scene.solver)
-        if mpi_rank() > 0:                     # mpiexec: rank 0 writes and prints
-            args.output, args.json, args.quiet = Path(tempfile.mkdtemp()), False, True
-        folder = RunFolder(args.output or default_output(scene.name), program=f"tofsi {args.command}",
-                           overwrite=args.overwrite, resume=getattr(args, "resume", False)).check()
-        ctx = RunContext(output=folder.path, json=args.json, quiet=args.quiet, folder=folder,
-                         record=run_record(scene, overrides, ["tofsi", *argv], f"tofsi {args.command}"))
-        command = importlib.import_module(f"tofsi.commands.{args.command.replace('-', '_')}")
-        figures = command.run(scene, args, ctx)
+        try:
+            check_options(args)
+            overrides = scene_overrides(args)
+            announce_large_scene(args.scene, args.quiet)
+            scene = load_scene(args.scene, overrides)
+            if args.command != "mesh":
+                check_memory(scene, args.command, args.max_memory)     # before any factorization
+                configure_linear_algebra(scene.solver)
+            if mpi_rank() > 0:                     # mpiexec: rank 0 writes and prints
+                args.output, args.json, args.quiet = Path(tempfile.mkdtemp()), False, True
+            where = {"key": "--output", "shown": str(args.output)} if args.output else {"key": "name",
+                                                                                         "shown": scene.name}
+            folder = RunFolder(args.output or default_output(scene.name), program=f"tofsi {args.command}",
+                               overwrite=args.overwrite, resume=getattr(args, "resume", False), **where).check()
+            check_room(folder.path, scene, args.command, folder.replaced_bytes)
+            ctx = RunContext(output=folder.path, json=args.json, quiet=args.quiet, folder=folder,
+                             record=run_record(scene, overrides, ["tofsi", *argv], f"tofsi {args.command}"))
+            command = importlib.import_module(f"tofsi.commands.{args.command.replace('-', '_')}")
+            figures = command.run(scene, args, ctx)
+        except OSError as err:                     # a write that did not go through atomic_write
+            if err.errno not in WRITE_ERRNOS:
+                raise
+            raise WriteError.of(err.filename or "a file", err) from err
+        unrecorded = _finish(ctx, ctx.exit_status)
+        if unrecorded is not None:                 # the results are complete, their record is not
+            raise unrecorded
     except InputError as err:
-        if ctx is not None:
-            ctx.finish(2)
+        _finish(ctx, 2)
         return _error(f"tofsi: error: {err}", {"error": str(err), "key": err.key}, args.json, 2)
     except NumericalError as err:
-        path = None
-        if ctx is not None:                        # the diagnostic goes beside the results
-            ctx.begin()
-            path = ctx.path("diagnostic.json")
-            write_json(path, {"error": str(err), **err.diagnostic})
-            ctx.extra.setdefault("stop_reason", "numerical failure" if args.command == "optimize" else None)
-            ctx.finish(3)
-        extra = hint(err, scene, args.command)
-        quality = err.diagnostic.get("quality", {})
-        payload = {"error": str(err), "converged": False, "diagnostic": str(path),
-                   **{k: quality[k] for k in QUALITY if k in quality}}
-        return _error(f"tofsi: numerical failure: {err}{'; ' + extra if extra else ''} (diagnostic: {path})",
-                      payload, args.json, 3)
+        return _numerical_failure(err, args, ctx, scene)
+    except WriteError as err:
+        return _write_failure(err, args, ctx)
     except KeyboardInterrupt as err:
         status = 143 if isinstance(err, Terminated) else 130
         if ctx is not None:
             ctx.extra["stop_reason"] = "interrupted" if args.command == "optimize" else None
-            ctx.finish(status)
+        _finish(ctx, status)
         how = "terminated" if status == 143 else "interrupted"
         resume = " (resume with --resume)" if args.command == "optimize" and ctx and ctx.folder.begun else ""
         return _error(f"tofsi: {how}{resume}", {"error": how}, args.json, status)
-    ctx.finish(ctx.exit_status)
+    finally:
+        if folder is not None:
+            folder.release()
     if args.json:
         print(to_json(figures))
     return ctx.exit_status
+
+
+def _finish(ctx, status: int, **more) -> WriteError | None:
+    """Complete run.json (when the run wrote anything) and unlock the folder."""
+    if ctx is None or ctx.folder is None:
+        return None
+    return ctx.folder.finish(status, **ctx.extra, **more)
+
+
+def _numerical_failure(err: NumericalError, args, ctx, scene) -> int:
+    """Exit 3: the diagnostic goes beside the results (when it can be written)."""
+    path, unwritten = None, ""
+    if ctx is not None:
+        try:
+            ctx.begin()
+            path = ctx.path("diagnostic.json")
+            write_json(path, {"error": str(err), **err.diagnostic})
+        except WriteError as failure:
+            path, unwritten = None, f"; {failure}"
+        ctx.extra.setdefault("stop_reason", "numerical failure" if args.command == "optimize" else None)
+        _finish(ctx, 3)
+    extra = hint(err, scene, args.command)
+    quality = err.diagnostic.get("quality", {})
+    payload = {"error": str(err), "converged": False, "diagnostic": str(path),
+               **{k: quality[k] for k in QUALITY if k in quality}}
+    return _error(f"tofsi: numerical failure: {err}{'; ' + extra if extra else ''} (diagnostic: {path})"
+                  f"{unwritten}", payload, args.json, 3)
+
+
+def _write_failure(err: WriteError, args, ctx) -> int:
+    """Exit 4, one line: the file that could not be written and why, the complete files kept,
+    and whether run.json records it."""
+    kept, record = [], ""
+    if ctx is not None and ctx.folder is not None and ctx.folder.begun:
+        failure = {"file": err.path, "error": err.reason}
+        unrecorded = _finish(ctx, 4, write_failure=failure)
+        kept = ctx.folder.files()
+        record = ("; run.json records the failure" if unrecorded is None else
+                  f"; run.json could not be updated either ({unrecorded.reason})")
+    else:
+        _finish(ctx, 4)
+    where = f" in {ctx.output}" if ctx is not None else ""
+    shown = ", ".join(kept[:8]) + (f" and {len(kept) - 8} more" if len(kept) > 8 else "")
+    kept_text = f"kept {len(kept)} complete file(s){where}: {shown}" if kept else f"nothing was kept{where}"
+    payload = {"error": str(err), "file": err.path, "reason": err.reason, "kept": kept}
+    return _error(f"tofsi: write failure: {err}; {kept_text}{record}", payload, args.json, 4)
 
 
 if __name__ == "__main__":

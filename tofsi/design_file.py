@@ -27,7 +27,13 @@ def read_design(path, n_design: int, key: str = "design.initial") -> np.ndarray:
     except (ValueError, OSError, EOFError):
         raise InputError(key, str(path), "is not a NumPy .npy file (tofsi optimize writes design.npy; "
                                          "text or pickled files are not read)") from None
-    if not isinstance(gamma, np.ndarray) or gamma.dtype.kind not in "biuf" or gamma.shape != (n_design,):
+    kinds = {"U": "text", "S": "bytes", "c": "complex numbers", "O": "objects", "M": "dates",
+             "m": "time spans", "V": "records"}
+    if isinstance(gamma, np.ndarray) and gamma.dtype.kind not in "biuf":
+        what = kinds.get(gamma.dtype.kind, f"values of type {gamma.dtype}")
+        raise InputError(key, str(path), f"holds {what} (dtype {gamma.dtype}); needs {n_design} real "
+                                         "numbers in [0, 1] (this scene's design variables)")
+    if not isinstance(gamma, np.ndarray) or gamma.shape != (n_design,):
         shape = getattr(gamma, "shape", None)
         raise InputError(key, str(path), f"needs {n_design} numbers (this scene's design variables), "
                                          f"got an array of shape {shape}")

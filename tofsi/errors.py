@@ -4,7 +4,9 @@
 allowed; its message names the key, the value and what is allowed.
 ``NumericalError`` (status 3) means a solver could not deliver a trustworthy
 result; it carries a diagnostic dictionary (iteration history, worst element)
-that the command line writes next to the results.
+that the command line writes next to the results. ``WriteError`` (status 4)
+means a result file could not be written (disk full, a file-size limit, a
+name too long): it names the file and the reason.
 """
 
 from __future__ import annotations
@@ -54,3 +56,22 @@ class NumericalError(TofsiError, RuntimeError):
 
     def __reduce__(self):                      # picklable; the state stays behind
         return (NumericalError, (str(self), self.diagnostic))
+
+
+class WriteError(TofsiError):
+    """A result file could not be written: ``path`` (the file meant), ``reason`` (the
+    system's words, e.g. "No space left on device") and ``errno``."""
+
+    exit_status = 4
+
+    def __init__(self, path, reason: str, errno: int | None = None):
+        self.path, self.reason, self.errno = str(path), reason, errno
+        super().__init__(f"could not write {self.path} ({reason})")
+
+    def __reduce__(self):
+        return (WriteError, (self.path, self.reason, self.errno))
+
+    @classmethod
+    def of(cls, path, err: OSError) -> "WriteError":
+        """The :class:`WriteError` of writing ``path`` that failed with ``err``."""
+        return cls(path, err.strerror or str(err), err.errno)

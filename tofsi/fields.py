@@ -16,7 +16,9 @@ its physics module plus its entry here (or in your own module):
   files), ``summary`` the ones a command prints;
 * ``point_data(model, state)`` -- the nodal arrays it writes (VTU, on the Q2
   nodes), ``pictures(model, state)`` -- the pictures it asks for, as data
-  (:class:`Picture`: the drivers draw them; physics knows no plotting).
+  (:class:`Picture`: the drivers draw them; physics knows no plotting), and
+  ``picture_names`` their names, known before solving (the output-size
+  estimate, :mod:`tofsi.output_size`).
 
 Entries are registered in dependency order (a field's physics may use the
 physics of the fields before it: the structure is loaded by the flow, the
@@ -111,6 +113,7 @@ class Field:
     title: str
     tables: tuple[str, ...] = ()
     summary: tuple[str, ...] = ()
+    picture_names: tuple[str, ...] = ()       # the names of what pictures() returns
 
     def active(self, scene, command: str = "solve") -> bool:
         raise NotImplementedError
@@ -139,6 +142,7 @@ class FlowEntry(Field):
 
     name, title, tables = "w", "flow", ("fluid",)
     summary = ("pressure_drop", "dissipated_power", "drag", "lift")
+    picture_names = ("velocity", "pressure")
 
     def active(self, scene, command="solve"):
         return scene.effects.fluid != "none" and command not in MOTION_ONLY
@@ -184,6 +188,7 @@ class StructureEntry(Field):
 
     name, title, tables = "u", "structure", ("structure",)
     summary = ("compliance", "max_displacement")
+    picture_names = ("deformed",)
 
     def active(self, scene, command="solve"):
         return scene.effects.structure != "none" and command not in MOTION_ONLY
@@ -219,7 +224,8 @@ class StructureEntry(Field):
         U = state.u.reshape(-1, 2)
         scale = 0.1 * np.ptp(mesh.points, axis=0).max() / max(np.abs(U).max(), 1e-300)
         scale = min(scale, 1.0) if state.x is not None else scale
-        return [Picture("deformed", f"structure displacement (magnified {scale:.3g} times)",
+        size = f"magnified {scale:.3g} times" if scale >= 1 else f"drawn at {scale:.3g} of its size"
+        return [Picture("deformed", f"structure displacement ({size})",
                         "density rho (0 fluid, 1 solid)", state.rho, kind="mesh", cmap="Greys",
                         points=mesh.points + scale * U, vmin=0.0, vmax=1.0)]
 
@@ -230,6 +236,7 @@ class MotionEntry(Field):
 
     name, title, tables = "x", "mesh motion", ("mover",)
     summary = ("min_skewness", "n_inverted")
+    picture_names = ("mesh",)
 
     def active(self, scene, command="solve"):
         e = scene.effects

@@ -5,9 +5,10 @@ The driver reads top to bottom::
     for each continuation stage (projection beta, SIMP penalty, Brinkman q, coupling):
         NLopt minimizes f(gamma) / f(gamma_0) subject to g(gamma) <= 0, 0 <= gamma <= 1,
         each evaluation: one forward solve + one adjoint per quantity (cached),
-        after each evaluation: history row, checkpoint, pictures every N iterations;
-        a trial design whose solve fails: back to the last good design, MMA restarted
-        with half its move limit (a fallback), at most optimizer.max_failures in a row.
+        after each evaluation: history row and design.npy (small, first), checkpoint,
+        pictures every N iterations; a trial design whose solve fails: back to the last
+        good design, MMA restarted with half its move limit (a fallback), at most
+        optimizer.max_failures in a row.
 
 A trial design of a soft two-way problem can ask for a motion the mesh cannot
 follow (the mover folds an element) or a coupled solve that does not converge
@@ -196,10 +197,11 @@ class Optimizer:
                        float(g[1]) if len(g) > 1 else float("nan"), self.fallbacks, *entry["ramp"])
         self.history.append(it)
         if "state" in entry:                           # computed now (not replayed): save
+            self._write_history()                      # the small results first: a full disk
+            self._write_design(gamma)                  # keeps them (the line says so)
             write_checkpoint(self.checkpoint_path, self.problem, run, self.history, entry["state"])
             for earlier in run.log[:-1]:               # hold one state (and its factorizations)
                 earlier.pop("state", None)
-            self._write_history()
             if self.on_picture and (it.iteration % self.settings.output_every == 0):
                 self.on_picture(it.iteration, gamma, entry["state"])
         if self.on_iteration:
@@ -329,6 +331,11 @@ class Optimizer:
         write_csv(self.output / "history.csv", rows)
         write_json(self.output / "history.json", rows)
 
+    def _write_design(self, gamma: np.ndarray) -> None:
+        """``design.npy``: the design variables of the latest iteration (the final design once
+        the run ends), for ``tofsi solve --design``."""
+        atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))
+
     def finish(self, gamma: np.ndarray) -> dict:
         """Evaluate the final design (after the last stage's parameters) and summarize it."""
         p = self.problem
@@ -345,8 +352,8 @@ class Optimizer:
                    "stage": self.history[-1].stage if self.history else 0,     # of these figures
                    **p.model.figures(state)}
         self._write_history()
+        self._write_design(gamma)
         write_json(self.output / "result.json", figures)
-        atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))
         if self.on_picture:
             self.on_picture("final", gamma, state)
         self.final_state = state

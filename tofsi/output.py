@@ -3,7 +3,9 @@
 Every file is written to a temporary name in its folder and renamed into
 place, so an interrupted run never leaves a half-written file, and a run
 that fails before producing anything leaves no folder behind (folders are
-created on the first write).
+created on the first write). A file that cannot be written (disk full, a
+file-size limit, a name too long) raises :class:`~tofsi.errors.WriteError`
+naming it; the file it would have replaced stays as it was.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from pathlib import Path
 
 import meshio
 import numpy as np
+
+from tofsi.errors import WriteError
 
 
 _UMASK = os.umask(0)
@@ -55,18 +59,22 @@ def to_json(obj) -> str:
 
 
 def atomic_write(path: str | Path, write) -> Path:
-    """Call ``write(tmp_path)`` then rename the temporary file to ``path``."""
+    """Call ``write(tmp_path)`` then rename the temporary file to ``path``; an
+    :class:`OSError` on the way becomes a :class:`WriteError` naming ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
+        os.close(fd)
         write(tmp)
         os.chmod(tmp, 0o666 & ~_UMASK)          # mkstemp creates 0600; use the usual mode
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+    except BaseException as err:
+        if tmp is not None and os.path.exists(tmp):
             os.remove(tmp)
+        if isinstance(err, OSError):
+            raise WriteError.of(path, err) from err
         raise
     return path
 

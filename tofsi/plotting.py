@@ -4,12 +4,16 @@ convergence.
 Every picture is laid out by matplotlib's constrained layout, so panels,
 colour bars and labels do not overlap; titles are figure titles wrapped to the
 figure's width, so they never run under a colour bar. Axes carry units,
-colour bars their quantity's name.
+colour bars their quantity's name and what its scale means (skewness: 1
+square corners, 0 degenerate, below 0 inverted), and every line, outline and
+grey patch drawn over a field has an entry in the legend below the picture
+(the fluid-structure interface, the design region, the solid, a failed element).
 """
 
 from __future__ import annotations
 
 import textwrap
+from dataclasses import dataclass
 
 import matplotlib
 
@@ -19,8 +23,62 @@ import numpy as np  # noqa: E402
 from matplotlib.cm import ScalarMappable  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 
 from tofsi.output import atomic_write  # noqa: E402
+from tofsi.quality import SKEWNESS_LABEL  # noqa: E402
+
+
+@dataclass(frozen=True)
+class Outline:
+    """Lines drawn over a picture, with their legend entry: ``edges`` node pairs ``(m, 2)``
+    of the picture's points."""
+
+    edges: np.ndarray
+    label: str
+    color: str = "red"
+    style: str = "-"
+    width: float = 1.2
+
+
+def element_boundary(quads: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Node pairs ``(m, 2)`` of the outline of the elements ``mask`` (their edges that no
+    other element of the set shares)."""
+    q = quads[np.asarray(mask, bool)]
+    edges = np.sort(np.concatenate([q[:, [0, 1]], q[:, [1, 2]], q[:, [2, 3]], q[:, [3, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    return unique[counts == 1]
+
+
+def region_outlines(quads: np.ndarray, region: np.ndarray, solid: str = "fixed solid") -> list[Outline]:
+    """The outlines of the design region (dashed) and of the fixed solid (named ``solid``) of a
+    mesh with element tags ``region`` (:mod:`tofsi.mesh`)."""
+    from tofsi.mesh import DESIGN, SOLID
+    out = []
+    if np.any(region == DESIGN):
+        out.append(Outline(element_boundary(quads, region == DESIGN), "design region", "darkorange", "--"))
+    if np.any(region == SOLID):
+        out.append(Outline(element_boundary(quads, region == SOLID), solid, "red"))
+    return out
+
+
+def draw_outlines(ax, points, outlines) -> list:
+    """Draw ``outlines`` over ``ax``; returns their legend handles."""
+    handles = []
+    for o in outlines:
+        if len(o.edges):
+            ax.add_collection(LineCollection(points[o.edges], colors=o.color, linewidths=o.width,
+                                             linestyles=o.style, zorder=4))
+            handles.append(Line2D([], [], color=o.color, lw=o.width, ls=o.style, label=o.label))
+    return handles
+
+
+def legend_below(fig, handles) -> None:
+    """A legend for what is drawn over the fields, under the picture (never over the data)."""
+    if handles:
+        fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3), fontsize=8,
+                   frameon=False)
 
 def field_figure(points, width: float = 7.0):
     """A figure for a field over the channel, its height following the domain's aspect."""
@@ -60,24 +118,31 @@ def save(fig, path) -> None:
     plt.close(fig)
 
 
-def plot_mesh(path, points, quads, values, interface_edges=None, title="", label="skewness",
-              vmin=None, vmax=None, cmap="viridis", grey=None, width=7.0) -> None:
-    """Mesh coloured by ``values`` (grey where ``grey`` is True), interface in red."""
+def plot_mesh(path, points, quads, values, interface_edges=None, title="", label=SKEWNESS_LABEL,
+              vmin=None, vmax=None, cmap="viridis", grey=None, width=7.0, outlines=(),
+              grey_label="solid") -> None:
+    """Mesh coloured by ``values`` (grey where ``grey`` is True: ``grey_label`` in the legend),
+    the fluid-structure interface in red, ``outlines`` (:class:`Outline`) over it."""
     fig, ax = field_figure(points, width)
     shown = np.ones(len(quads), bool) if grey is None else ~np.asarray(grey)
+    handles = []
     if grey is not None and np.any(grey):
         ax.add_collection(PolyCollection(points[quads[grey]], facecolors="0.7",
                                          edgecolors="0.4", linewidths=0.15))
+        handles.append(Patch(facecolor="0.7", edgecolor="0.4", label=grey_label))
     quad_field(ax, points, quads[shown], np.asarray(values)[shown], cmap=cmap, vmin=vmin,
                vmax=vmax, label=label)
-    if interface_edges is not None and len(interface_edges):
-        ax.add_collection(LineCollection(points[interface_edges], colors="red", linewidths=1.2))
+    if interface_edges is not None:
+        outlines = (Outline(np.asarray(interface_edges), "fluid-structure interface"), *outlines)
+    handles += draw_outlines(ax, points, outlines)
+    legend_below(fig, handles)
     set_title(fig, title)
     save(fig, path)
 
 
-FIGURE_LABELS = {"min_skewness": "minimum skewness", "min_area_change": "minimum area change",
-                 "max_area_change": "maximum area change", "wall_time_s": "wall time [s]"}
+FIGURE_LABELS = {"min_skewness": "minimum skewness\n(1 square corners, < 0 inverted)",
+                 "min_area_change": "minimum area change A / A0",
+                 "max_area_change": "maximum area change A / A0", "wall_time_s": "wall time [s]"}
 
 
 def _is_number(v) -> bool:
@@ -155,17 +220,18 @@ def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool
                 if not failed(r):
                     Z[ys.index(r[ky]), xs.index(r[kx])] = r.get("min_skewness", np.nan)
             mesh = ax.pcolormesh(xs, ys, Z, shading="nearest", cmap="viridis")
-            fig.colorbar(mesh, ax=ax, label="minimum skewness")
+            fig.colorbar(mesh, ax=ax, label="minimum " + SKEWNESS_LABEL)
             bad = [r for r in sel if failed(r)]
             if bad:
                 ax.plot([r[kx] for r in bad], [r[ky] for r in bad], "x", color="red", ms=8, mew=1.5,
                         label="failed")
-                ax.legend(fontsize=7, loc="upper right")
             text = label(group) or ""
             if np.isfinite(Z).any():
                 j, i = np.unravel_index(np.nanargmax(Z), Z.shape)
-                ax.plot(xs[i], ys[j], "r*", ms=12)
+                ax.plot(xs[i], ys[j], "r*", ms=12, label="best")
                 text += f"{'; ' if text else ''}best {Z[j, i]:.3f} at ({xs[i]:g}, {ys[j]:g})"
+            if ax.get_legend_handles_labels()[0]:                 # below the map, off the data
+                ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncols=2, frameon=False)
             ax.set_title(textwrap.fill(text, 45), fontsize=9)
             ax.set_xlabel(kx)
             ax.set_ylabel(ky)
@@ -202,25 +268,29 @@ def pareto(ax, rows: list[dict], x: str, y: str, label_key: str, title: str) -> 
 
 
 def plot_nodal(path, points, quads, values, title="", label="", cmap="viridis", grey=None,
-               outline=None, width=8.0) -> None:
-    """A nodal field on quads (two Gouraud-shaded triangles each), solid elements in grey."""
+               outlines=(), width=8.0, grey_label="solid (density > 0.5)") -> None:
+    """A nodal field on quads (two Gouraud-shaded triangles each), solid elements in grey
+    (``grey_label`` in the legend), ``outlines`` (:class:`Outline`) over it."""
     from matplotlib.tri import Triangulation
     fig, ax = field_figure(points, width)
     tris = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     mesh = ax.tripcolor(Triangulation(points[:, 0], points[:, 1], tris), values, shading="gouraud", cmap=cmap)
     fig.colorbar(mesh, ax=ax, label=label, shrink=0.8)
+    handles = []
     if grey is not None and np.any(grey):
         ax.add_collection(PolyCollection(points[quads[grey]], facecolors="0.6", edgecolors="none", alpha=0.85))
-    if outline is not None and len(outline):
-        ax.add_collection(LineCollection(points[outline], colors="red", linewidths=1.0))
+        handles.append(Patch(facecolor="0.6", alpha=0.85, label=grey_label))
+    handles += draw_outlines(ax, points, outlines)
+    legend_below(fig, handles)
     channel_axes(ax, points)
     set_title(fig, title)
     save(fig, path)
 
 
-def plot_design(path, points, quads, rho, speed=None, title="", width=8.0) -> None:
+def plot_design(path, points, quads, rho, speed=None, title="", width=8.0, outlines=()) -> None:
     """Design densities (black: solid; colour bar ``density``) over the flow speed (nodal,
-    blue; colour bar ``|v| [m/s]``)."""
+    blue; colour bar ``|v| [m/s]``), ``outlines`` (:class:`Outline`: the design region, the
+    fixed solid) over both."""
     from matplotlib.tri import Triangulation
     fig, ax = field_figure(points, width)
     if speed is not None:
@@ -233,6 +303,7 @@ def plot_design(path, points, quads, rho, speed=None, title="", width=8.0) -> No
     ax.add_collection(PolyCollection(points[quads], facecolors=colours, edgecolors="none"))
     fig.colorbar(ScalarMappable(Normalize(0.0, 1.0), "Greys"), ax=ax, shrink=0.8,
                  label="density rho (0 fluid, 1 solid)")
+    legend_below(fig, draw_outlines(ax, points, outlines))
     channel_axes(ax, points)
     set_title(fig, title)
     save(fig, path)
@@ -240,9 +311,10 @@ def plot_design(path, points, quads, rho, speed=None, title="", width=8.0) -> No
 
 def plot_convergence(path, history: list[dict], title="", objective_label="objective") -> None:
     """Objective (log scale when it spans decades) and volume constraint versus iteration;
-    the start of each continuation stage is a dashed line labelled with its beta. When the
-    fluid mesh moved (two-way stages), a second panel shows its quality per iteration: the
-    smallest element skewness and the range of element area change."""
+    each continuation stage is labelled with its beta (and coupling) where it starts, the
+    first one included, and a dashed line marks each new stage. When the fluid mesh moved
+    (two-way stages), a second panel shows its quality per iteration: the smallest element
+    skewness and the range of element area change. The legend names every line."""
     it = [h["iteration"] for h in history]
     skew = np.array([h.get("min_skewness", np.nan) for h in history], dtype=float)
     moved = bool(np.isfinite(skew).any())
@@ -266,25 +338,28 @@ def plot_convergence(path, history: list[dict], title="", objective_label="objec
                                label="new continuation stage" if n == 0 else None)
         if n == 0:
             lines.append(line)
+    for k in ([0] if history else []) + starts:                  # every stage, the first too
         coupling = history[k].get("coupling", "")
-        ax.annotate(f"beta {history[k]['beta']:g}" + (f", {coupling}" if coupling else ""),
-                    (history[k]["iteration"], 1.0), xycoords=("data", "axes fraction"), xytext=(2, -10),
+        beta = history[k].get("beta")
+        text = (f"beta {beta:g}" if beta is not None else f"stage {history[k]['stage']}") + (
+            f", {coupling}" if coupling else "")
+        ax.annotate(text, (history[k]["iteration"], 1.0), xycoords=("data", "axes fraction"), xytext=(2, -10),
                     textcoords="offset points", fontsize=7, color="0.35")
     if moved:
         q = axes[1, 0]
-        q.plot(it, skew, "g-", label="min element skewness")
-        q.set_ylabel("min skewness (1 best, < 0 inverted)", color="g")
+        lines += q.plot(it, skew, "g-", label="min element skewness")
+        q.set_ylabel("min skewness (1 square corners,\n0 degenerate, < 0 inverted)", color="g")
         q.axhline(0.0, color="g", lw=0.5, ls=":")
         qa = q.twinx()
         lo = [h.get("min_area_change", np.nan) for h in history]
         hi = [h.get("max_area_change", np.nan) for h in history]
-        qa.plot(it, lo, "m--", lw=0.9, label="min area change")
-        qa.plot(it, hi, "m:", lw=0.9, label="max area change")
+        lines += qa.plot(it, lo, "m--", lw=0.9, label="min area change A / A0")
+        lines += qa.plot(it, hi, "m:", lw=0.9, label="max area change A / A0")
         qa.set_ylabel("element area change A / A0", color="m")
         q.grid(alpha=0.3)
         q.set_title("moved fluid mesh", fontsize=9)
     fig.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="outside lower center",
-               ncols=len(lines), frameon=False)
+               ncols=min(len(lines), 3), frameon=False)
     ax.grid(alpha=0.3, which="both")
     set_title(fig, title)
     save(fig, path)

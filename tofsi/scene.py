@@ -11,7 +11,9 @@ all read that one list.
 
 from __future__ import annotations
 
+import re
 import tomllib
+import unicodedata
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +24,8 @@ from tofsi.errors import InputError
 from tofsi.registry import OBJECTIVES, SCENE_TABLES
 
 MIN_ELEMENTS_ACROSS = 4     # mesh.h_max is at most the channel's smaller side over this
+MOVER_ALIASES = (("mover", "name"), ("effects", "mesh_motion"))      # one setting, two spellings
+_INDEXED = re.compile(r"^(?P<key>[^\[\]]+)(?P<indices>(\[\d+\])+)$")     # layers[0], solids[1][2]
 
 
 @dataclass(frozen=True)
@@ -113,9 +117,10 @@ def scene_from_dict(raw: dict, source: str = "") -> Scene:
         if key not in top:
             raise InputError(key, raw[key], "unknown key; allowed keys: " + ", ".join(sorted(top)))
     name = raw.get("name")
-    if not isinstance(name, str) or not name or any(c in name for c in "/\\\0") or name in (".", ".."):
-        raise InputError("name", name, "required: a non-empty string without slashes, not '.' or '..' "
-                         "(it names the output folder)")
+    if (not isinstance(name, str) or not name or any(c in name for c in "/\\")
+            or any(unicodedata.category(c) == "Cc" for c in name) or name in (".", "..")):
+        raise InputError("name", name, "required: a non-empty string without slashes or control "
+                         "characters (newline, tab, ...), not '.' or '..' (it names the output folder)")
     description = raw.get("description", "")
     if not isinstance(description, str):
         raise InputError("description", description, "expected a string")
@@ -164,13 +169,27 @@ def parse_override(text: str) -> tuple[list[str], Any]:
 
 
 def apply_overrides(raw: dict, overrides) -> dict:
-    """A copy of ``raw`` with each ``KEY=VALUE`` (or ``(path, value)``) applied."""
+    """A copy of ``raw`` with each ``KEY=VALUE`` (or ``(path, value)``) applied.
+
+    ``KEY[i]=VALUE`` replaces entry ``i`` of a list the scene holds (``mover.layers[0]=2``;
+    ``[i][j]`` for a list of lists). ``mover.name`` and ``effects.mesh_motion`` are one
+    setting: an override of either replaces the file's value of both, and two overrides
+    giving them different values are refused.
+    """
     import copy
     raw = copy.deepcopy(raw)
+    movers_set: dict[tuple, tuple[str, object]] = {}        # alias -> (override text, value)
     for item in overrides or ():
         path, value = parse_override(item) if isinstance(item, str) else item
-        if list(path) in (["mover", "name"], ["effects", "mesh_motion"]):
-            for alias in (["mover", "name"], ["effects", "mesh_motion"]):
+        path = list(path)
+        shown = item if isinstance(item, str) else f"{'.'.join(path)}={value!r}"
+        if tuple(path) in MOVER_ALIASES:
+            other = [a for a in MOVER_ALIASES if a != tuple(path)][0]
+            if other in movers_set and movers_set[other][1] != value:
+                raise InputError(".".join(path), value, f"conflicts with --set {movers_set[other][0]}: "
+                                 "mover.name and effects.mesh_motion are one setting; give one of them")
+            movers_set[tuple(path)] = (shown, value)
+            for alias in MOVER_ALIASES:
                 if isinstance(raw.get(alias[0]), dict):
                     raw[alias[0]].pop(alias[1], None)
         table = raw
@@ -179,8 +198,31 @@ def apply_overrides(raw: dict, overrides) -> dict:
             if not isinstance(nxt, dict):
                 raise InputError(".".join(path), value, f"{part} is not a table")
             table = nxt
-        table[path[-1]] = value
+        match = _INDEXED.match(path[-1])
+        if match:
+            _set_entry(table, path, match, value)
+        else:
+            table[path[-1]] = value
     return raw
+
+
+def _set_entry(table: dict, path: list, match, value) -> None:
+    """``table[key][i]...[j] = value`` for an override ``KEY[i]...[j]=VALUE`` (in range)."""
+    key, indices = match["key"], [int(i) for i in re.findall(r"\d+", match["indices"])]
+    dotted = ".".join(path[:-1] + [key])
+    target = table.get(key)
+    where = dotted
+    for depth, index in enumerate(indices):
+        if not isinstance(target, list):
+            have = "holds no list" if target is None else f"is {target!r}, not a list"
+            raise InputError(".".join(path), value, f"the scene's {where} {have}; set the whole list: "
+                             f"{dotted}=[...]")
+        if index >= len(target):
+            size = f"has {len(target)} entries (index 0 to {len(target) - 1})" if target else "is empty"
+            raise InputError(".".join(path), value, f"{where} {size}; set the whole list: {dotted}=[...]")
+        if depth == len(indices) - 1:
+            target[index] = value
+        target, where = target[index], f"{where}[{index}]"
 
 
 def read_scene_file(path: str | Path) -> dict:
@@ -188,6 +230,9 @@ def read_scene_file(path: str | Path) -> dict:
     path = Path(path)
     if path.is_dir():
         raise InputError("scene", str(path), "is a directory; give a scene file (TOML)")
+    if path.exists() and not path.is_file():
+        raise InputError("scene", str(path), "is not a regular file (a device, pipe or socket); give a "
+                         "scene file (TOML)")
     if not path.is_file():
         raise InputError("scene", str(path), "no such file")
     try:
@@ -213,7 +258,8 @@ def load_scene(path: str | Path, overrides=None) -> Scene:
 def reference_table() -> str:
     """Markdown tables (docs/scenes.md): every scene key of every registered table with its
     default, allowed values and meaning; then the registered objectives."""
-    rows = [("name", "(required)", "a string without slashes, not . or ..", "the scene's name (output folder)"),
+    rows = [("name", "(required)", "a string without slashes or control characters, not . or ..",
+             "the scene's name (output folder)"),
             ("description", "", "a string", "one line about the scene")]
     for table in SCENE_TABLES:
         rows += table.rows()

@@ -26,7 +26,7 @@ import movers
 from tofsi.config import build, coerce, documentation, option
 from tofsi.errors import InputError
 from tofsi.registry import SCENE_TABLES
-from tofsi.settings import (BandSettings, CoupledSettings, DesignSettings, FluidSettings,
+from tofsi.settings import (MAX_STIFFENING, BandSettings, CoupledSettings, DesignSettings, FluidSettings,
                             OptimizerSettings, SolverSettings, StructureSettings, TuneSettings)
 
 THIN = 1e-6                 # solids thinner than this fraction of the channel get a warning
@@ -232,7 +232,7 @@ def _build_mover(raw, raw_scene) -> MoverSettings:
             raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, layers_from, "
                              "band, or a parameter table of one of " + ", ".join(map(repr, names)))
     factors = coerce(tuple[float, ...], layers, "mover.layers",
-                     dict(gt=0, doc="stiffening factor per element layer"))
+                     dict(gt=0, le=MAX_STIFFENING, doc="stiffening factor per element layer"))
     params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
     return MoverSettings(name=mover_name(raw_scene), layers=factors, params=MappingProxyType(params),
                          layers_from=layers_from, band=band)
@@ -248,7 +248,7 @@ def _write_mover(mover: MoverSettings) -> dict:
 def _mover_rows() -> list:
     rows = [("mover.name", "none", "none, " + ", ".join(movers.available()),
              "the mover (same setting as effects.mesh_motion)"),
-            ("mover.layers", (), "list of numbers, each 0 < value",
+            ("mover.layers", (), f"list of numbers, each 0 < value <= {MAX_STIFFENING:g}",
              "stiffening factor of each element layer counted from the interface"),
             ("mover.layers_from", "density", "one of 'density', 'solid'",
              "design scenes: count the layers from the evolving design (smooth dilation of the "

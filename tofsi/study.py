@@ -29,6 +29,7 @@ from tofsi.errors import InputError, NumericalError
 from tofsi.scene import parse_override
 
 _INDEXED = re.compile(r"^(?P<key>[\w.]+)\[(?P<index>\d+)\]$")
+MAX_POINTS = 100_000          # sweep points (one run each): counted before any value is made
 
 
 @dataclass(frozen=True)
@@ -39,9 +40,22 @@ class Sweep:
 
 def _number(text: str, sweep: str) -> float:
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
         raise InputError("--sweep", sweep, f"{text!r} is not a number") from None
+    if not np.isfinite(value):
+        raise InputError("--sweep", sweep, f"{text!r} is not a finite number")
+    return value
+
+
+def _count(span: float, step: float, sweep: str) -> int:
+    """Values of a range whose ``span`` holds ``span / step`` steps, refused beyond MAX_POINTS
+    (counted before any array is made)."""
+    steps = span / step + 1e-9
+    if not np.isfinite(steps) or steps + 1 > MAX_POINTS:
+        raise InputError("--sweep", sweep, f"gives {steps + 1:.3g} values; allowed: at most {MAX_POINTS} "
+                         "(use a larger step or factor)")
+    return int(np.floor(steps)) + 1
 
 
 def parse_sweep(text: str) -> Sweep:
@@ -60,23 +74,25 @@ def parse_sweep(text: str) -> Sweep:
             factor = _number(parts[2][1:], text)
             if start <= 0 or stop < start or factor <= 1:
                 raise InputError("--sweep", text, "a geometric range needs 0 < START <= STOP, FACTOR > 1")
-            count = int(np.floor(np.log(stop / start) / np.log(factor) + 1e-9)) + 1
+            count = _count(np.log(stop / start), np.log(factor), text)
             values = start * factor ** np.arange(count)
         else:
             step = _number(parts[2], text)
             if step <= 0 or stop < start:
                 raise InputError("--sweep", text, "a range needs START <= STOP and STEP > 0")
-            count = int(np.floor((stop - start) / step + 1e-9)) + 1
+            count = _count(stop - start, step, text)
             values = start + step * np.arange(count)
-        if count > 100_000:
-            raise InputError("--sweep", text, "more than 100000 values")
         return Sweep(key, tuple(float(v) for v in np.round(values, 12)))
     values = tuple(parse_override(f"v={v.strip()}")[1] for v in spec.split(","))
     return Sweep(key, values)
 
 
 def points(sweeps: list[Sweep]) -> list[dict]:
-    """The Cartesian product of the sweeps, one ``{key: value}`` per run."""
+    """The Cartesian product of the sweeps, one ``{key: value}`` per run (at most MAX_POINTS)."""
+    total = int(np.prod([len(s.values) for s in sweeps], dtype=float))
+    if total > MAX_POINTS:
+        raise InputError("--sweep", " ".join(f"{s.key} ({len(s.values)})" for s in sweeps),
+                         f"the grid has {total:,} points; allowed: at most {MAX_POINTS:,} runs")
     keys = [s.key for s in sweeps]
     return [dict(zip(keys, combo)) for combo in itertools.product(*(s.values for s in sweeps))]
 

@@ -9,7 +9,7 @@ from tofsi.channel import build_mesh
 from tofsi.layers import element_layers
 from tofsi.mesh import REGION_NAMES, SOLID
 from tofsi.output import write_vtu
-from tofsi.plotting import plot_mesh
+from tofsi.plotting import plot_mesh, region_outlines
 
 
 def mesh_figures(mesh) -> dict:
@@ -35,9 +35,11 @@ def run(scene, args, ctx) -> dict:
     write_vtu(ctx.path("mesh.vtu"), mesh.points, {"quad": mesh.quads},
               cell_data={"region": mesh.region, "layer": layer, "skewness": skew,
                          "area": quality.signed_area(mesh.points, mesh.quads)})
+    design = [o for o in region_outlines(mesh.quads, mesh.region) if o.label == "design region"]
     plot_mesh(ctx.path("mesh.png"), mesh.points, mesh.quads, layer, mesh.interface_edges,
-              title=f"{scene.name}: {mesh.n_elements} quads",
-              label="element layer from the interface", grey=mesh.region == SOLID, cmap="viridis_r")
+              title=f"{scene.name}: {mesh.nx} x {mesh.ny} = {mesh.n_elements} quads",
+              label="element layer counted from the interface (1: touching it)",
+              grey=mesh.region == SOLID, cmap="viridis_r", outlines=design)
     ctx.say("wrote " + ", ".join(ctx.written))
     figures["outputs"] = list(ctx.written)
     return figures

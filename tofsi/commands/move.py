@@ -9,7 +9,7 @@ from tofsi.errors import InputError, NumericalError
 from tofsi.mesh import SOLID
 from tofsi.motion import motion_setup, moved_quality, run_move
 from tofsi.output import write_json, write_vtu
-from tofsi.plotting import plot_mesh
+from tofsi.plotting import Outline, element_boundary, plot_mesh
 from tofsi.provenance import mover_settings
 
 MOTION_KEYS = {"translation": "deformation.translation", "rotation": "deformation.rotation_deg",
@@ -39,7 +39,9 @@ def check_motion_inside(scene, setup) -> None:
                          "use a smaller motion")
 
 
-def write_moved_mesh(ctx, setup, displacement, name, title, cell_data=None):
+def write_moved_mesh(ctx, setup, displacement, name, title, cell_data=None, broken=None):
+    """VTU and picture of the mesh moved by ``displacement``; inverted elements outlined, and
+    ``broken`` (a mover diagnostic's ``broken_element``: the element a failed step inverts)."""
     mesh = setup.mesh
     moved = mesh.points + displacement
     skew = quality.skewness(moved, mesh.quads)
@@ -51,8 +53,16 @@ def write_moved_mesh(ctx, setup, displacement, name, title, cell_data=None):
         data[key] = full
     write_vtu(ctx.path(f"{name}.vtu"), moved, {"quad": mesh.quads},
               point_data={"displacement": displacement}, cell_data=data)
+    inverted = quality.inverted(moved, mesh.quads) & (mesh.region != SOLID)
+    outlines = [Outline(element_boundary(mesh.quads, inverted), f"inverted element ({int(inverted.sum())})",
+                        "black", width=1.6)] if inverted.any() else []
+    if broken is not None:
+        k = broken["element"]
+        outlines.append(Outline(element_boundary(mesh.quads, np.arange(mesh.n_elements) == k),
+                                f"element {k}: inverted by the failed step", "magenta", width=2.0))
     plot_mesh(ctx.path(f"{name}.png"), moved, mesh.quads, skew, mesh.interface_edges, title=title,
-              vmin=min(0.0, float(skew.min())), vmax=1.0, grey=mesh.region == SOLID, cmap="RdYlGn")
+              vmin=min(0.0, float(skew.min())), vmax=1.0, grey=mesh.region == SOLID, cmap="RdYlGn",
+              outlines=outlines)
 
 
 def run(scene, args, ctx) -> dict:
@@ -68,7 +78,8 @@ def run(scene, args, ctx) -> dict:
         ctx.begin()
         state = getattr(err, "state", None)
         if state is not None:
-            write_moved_mesh(ctx, setup, state, "failed_mesh", f"{scene.name}: FAILED ({err})")
+            write_moved_mesh(ctx, setup, state, "failed_mesh", f"{scene.name}: FAILED ({err})",
+                             broken=err.diagnostic.get("broken_element"))
         raise
     bar.close()
     q = moved_quality(setup, result.displacement)

@@ -9,7 +9,7 @@ import numpy as np
 from tofsi.optimize import Optimizer
 from tofsi import quality
 from tofsi.output import atomic_write, write_vtu
-from tofsi.plotting import plot_convergence, plot_design
+from tofsi.plotting import plot_convergence, plot_design, region_outlines
 from tofsi.problem import Problem
 from tofsi.resume import check_checkpoint
 
@@ -49,8 +49,11 @@ class Pictures:
                       for name, values in field.point_data(p.model, state).items()}
         speed = np.linalg.norm(point_data["velocity"], axis=1) if "velocity" in point_data else None
         name = f"design_{tag}"
+        c = p.params                                      # the stage this state was solved in
+        stage = f"beta {c.beta:g}, penalty {c.penalty:g}" + (f", {c.coupling}" if c.coupling else "")
+        when = "final design" if iteration == "final" else f"design at iteration {iteration}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
-                    title=f"{p.scene.name}: design at iteration {iteration}")
+                    title=f"{p.scene.name}: {when} ({stage})", outlines=region_outlines(mesh.quads, mesh.region))
         cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma)}
         if state.x is not None:                                  # the moved fluid mesh's quality
             cells["skewness"] = quality.skewness(X, mesh.quads)

@@ -25,7 +25,7 @@ from tofsi.coupled import CoupledModel, continuation
 from tofsi.errors import InputError
 from tofsi.fields import Picture, state_points
 from tofsi.output import write_json, write_vtu
-from tofsi.plotting import plot_mesh, plot_nodal
+from tofsi.plotting import plot_mesh, plot_nodal, region_outlines
 from tofsi.problem import Problem
 from tofsi.provenance import solve_settings
 
@@ -52,13 +52,14 @@ def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None
 
 def draw(path, picture: Picture, X, mesh, rho, title: str) -> None:
     """A field's picture: nodal values on the mesh at ``X`` (solid greyed), or a mesh coloured
-    per element."""
+    per element; the design region and the fixed solid outlined over either."""
+    outlines = region_outlines(mesh.quads, mesh.region)
     if picture.kind == "nodal":
         plot_nodal(path, X, mesh.quads, picture.values, grey=rho > 0.5, title=title, label=picture.label,
-                   cmap=picture.cmap)
+                   cmap=picture.cmap, outlines=outlines)
     else:
         plot_mesh(path, picture.points, mesh.quads, picture.values, title=title, label=picture.label,
-                  cmap=picture.cmap, vmin=picture.vmin, vmax=picture.vmax)
+                  cmap=picture.cmap, vmin=picture.vmin, vmax=picture.vmax, outlines=outlines)
 
 
 def design_densities(scene, args):

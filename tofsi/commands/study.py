@@ -53,7 +53,9 @@ def run(scene, args, ctx) -> dict:
     n_failed = sum(failed(r) for r in rows)
     write_json(ctx.path("study.json"), {"scene": scene.name, "sweeps": keys, "best": top,
                                         "failed": n_failed, "rows": rows})
-    if plot_sweep(ctx.path("study.png"), rows, keys, title=scene.name) is False:
+    swept_mover = any(k in ("mover.name", "effects.mesh_motion") for k in keys)
+    title = f"{scene.name}: " + ("" if swept_mover else f"{scene.mover.name} mover, ") + scene.deformation.mode
+    if plot_sweep(ctx.path("study.png"), rows, keys, title=title) is False:
         ctx.written.pop()
     if top:
         ctx.say("best min skewness {:.4f} at ".format(top["min_skewness"])
