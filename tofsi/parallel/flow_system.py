@@ -39,7 +39,7 @@ from tofsi.physics.flow_preconditioner import element_areas
 from tofsi.physics.fluid_kernel import fluid_element
 
 log = logging.getLogger(__name__)
-ROW_NONZEROS = 64            # preallocation per row (Q2/Q1: at most 59 couplings)
+CHUNK = 2048                # elements per kernel call (bounds the kernel's temporaries)
 
 
 def _petsc():
@@ -95,8 +95,8 @@ class DistributedFlow:
         self.values_new = np.zeros(n)
         self.values_new[p.new_of_old] = flow.values                                      # boundary values
         self.mat = PETSc.Mat().createAIJ(((hi - lo, n), (hi - lo, n)), comm=self.comm)
-        self.mat.setPreallocationNNZ((ROW_NONZEROS, ROW_NONZEROS))
-        self.mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        self.mat.setPreallocationNNZ(self._row_counts())
+        self.mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         self.w = self.mat.createVecRight()
         self.r = self.mat.createVecLeft()
         self.ghost_vec = PETSc.Vec().createSeq(self.ghosts.size, comm=PETSc.COMM_SELF)
@@ -106,6 +106,23 @@ class DistributedFlow:
         self.is_p = PETSc.IS().createGeneral(p.pressure.astype(PETSc.IntType), comm=self.comm)
         self.krylov_iterations = 0
         self.assembled = False
+
+    def _row_counts(self):
+        """Non-zeros of each owned row in the diagonal and off-diagonal blocks ``((m,), (m,))``,
+        from the elements touching owned dofs (exact preallocation: no slack to squeeze out)."""
+        lo, hi = self.part.owned
+        dofs = self.part.new_of_old[self.flow.dofs[self.part.halo_elements]]              # (E_h, 22)
+        owned = (dofs >= lo) & (dofs < hi)
+        k = owned.sum(axis=1)                                                            # owned rows per element
+        rows = np.repeat(dofs[owned], 22)
+        cols = np.repeat(dofs, k, axis=0).reshape(-1)                                    # each owned row: 22 cols
+        pairs = np.unique((rows - lo) * self.flow.size + cols)
+        del rows, cols
+        row, col = pairs // self.flow.size, pairs % self.flow.size
+        inside = (col >= lo) & (col < hi)
+        m = hi - lo
+        return (np.bincount(row[inside], minlength=m).astype(np.int32),
+                np.bincount(row[~inside], minlength=m).astype(np.int32))
 
     # ---- state --------------------------------------------------------------------
     def set_state(self, w_old: np.ndarray) -> None:
@@ -145,21 +162,29 @@ class DistributedFlow:
 
     def assemble(self, w, x, rho, density, jacobian: bool = True, params=None) -> float:
         """Residual (``self.r``, fixed rows zeroed) and, if asked, the constrained Jacobian
-        (``self.mat``) of the slab's elements at ``w``; returns ``|R|``."""
+        (``self.mat``) of the slab's elements at ``w``; returns ``|R|``. The kernel runs on
+        chunks of :data:`CHUNK` elements, each added at once, so its temporaries stay small."""
         PETSc = _petsc()
         flow = self.flow
+        ADD = PETSc.InsertMode.ADD_VALUES
         ve, pe = self._element_values(w)
         alpha = flow.alpha(rho, params)[self.part.elements]
-        Re, Ke = fluid_element(self._corners(x), ve, pe, alpha, density, flow.settings.viscosity,
-                               flow.symmetric, jacobian)
+        corners = self._corners(x)
         self.r.zeroEntries()
-        self.r.setValues(self.dofs.ravel(), Re.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
+        if jacobian:
+            self.mat.zeroEntries()
+        for a in range(0, len(self.dofs), CHUNK):
+            b = a + CHUNK
+            Re, Ke = fluid_element(corners[a:b], ve[a:b], pe[a:b], alpha[a:b], density,
+                                   flow.settings.viscosity, flow.symmetric, jacobian)   # (c, 22), (c, 22, 22)
+            self.r.setValues(self.dofs[a:b].ravel(), Re.ravel(), addv=ADD)
+            if jacobian:
+                self.mat.setValuesRCV(self.dofs[a:b], self.dofs[a:b], Ke, addv=ADD)
+            del Re, Ke
         self.r.assemble()
         lo, _ = self.part.owned
         self.r.getArray()[self.fixed_owned - lo] = 0.0
         if jacobian:
-            self.mat.zeroEntries()
-            self.mat.setValuesRCV(self.dofs, self.dofs, Ke, addv=PETSc.InsertMode.ADD_VALUES)
             self.mat.assemble()
             self.mat.zeroRowsColumns(self.fixed_owned, diag=1.0)
             self.assembled = True

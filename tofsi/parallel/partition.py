@@ -32,6 +32,8 @@ class SlabPartition:
     new_of_old : (n,) the contiguous numbering of every dof
     ranges : (ranks + 1,) ownership ranges in the new numbering
     velocity, pressure : this rank's owned dofs, new numbering (the fieldsplit's index sets)
+    halo_elements : (E_h,) every element touching a dof this rank owns: its slab and the column
+        to its left (a node on the left cut is owned here, its left element by the neighbour)
     """
 
     rank: int
@@ -41,6 +43,7 @@ class SlabPartition:
     ranges: np.ndarray
     velocity: np.ndarray
     pressure: np.ndarray
+    halo_elements: np.ndarray
 
     @classmethod
     def of(cls, flow, rank: int, ranks: int) -> "SlabPartition":
@@ -58,8 +61,10 @@ class SlabPartition:
         counts = np.bincount(owner, minlength=ranks)
         ranges = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         mine = owner == rank
+        halo = (element_column >= max(cuts[rank] - 1, 0)) & (element_column < cuts[rank + 1])
         return cls(rank, ranks, np.flatnonzero(owner_of_column[element_column] == rank), new_of_old, ranges,
-                   np.sort(new_of_old[mine & ~is_pressure]), np.sort(new_of_old[mine & is_pressure]))
+                   np.sort(new_of_old[mine & ~is_pressure]), np.sort(new_of_old[mine & is_pressure]),
+                   np.flatnonzero(halo))
 
     @property
     def owned(self) -> tuple[int, int]:
