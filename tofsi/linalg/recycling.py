@@ -68,6 +68,14 @@ class RecyclingSolver:
         self.factorizations = 0
         self.krylov_iterations = 0
 
+    def with_factorize(self, factorize) -> "RecyclingSolver":
+        """A solver for a new sequence of systems (the next design's) that starts from this
+        one's factorization or hierarchy and builds new ones with ``factorize`` (this one is
+        left as it is)."""
+        other = RecyclingSolver(factorize, self.max_iter, self.rtol, self.refresh_after)
+        other.solver, other.stale, other.fresh_cost = self.solver, self.stale, self.fresh_cost
+        return other
+
     def refresh(self, A) -> None:
         self.solver = None                 # release the old factors (and their backend slot) first
         log.info("new factorization (or hierarchy) of %d unknowns", A.shape[0])
