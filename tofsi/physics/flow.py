@@ -42,7 +42,7 @@ from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import resolve
 from tofsi.physics.flow_boundary import FlowBoundary
 from tofsi.physics.flow_preconditioner import flow_preconditioner
-from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_element,
+from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_elements,
                                         velocity_fields)
 from tofsi.physics.fluid_shape import fluid_shape
 
@@ -138,9 +138,9 @@ class Flow:
         """Element residuals and Jacobians on the mesh moved by ``x`` (or on corners ``Xe``)."""
         ve, pe = self.split(w)
         Xe = self.corners(x) if Xe is None else Xe
-        Re, Ke = fluid_element(Xe, ve, pe, self.alpha(rho, params),
-                               self.density if density is None else density,
-                               self.settings.viscosity, self.symmetric, jacobian)
+        Re, Ke = fluid_elements(Xe, ve, pe, self.alpha(rho, params),
+                                self.density if density is None else density,
+                                self.settings.viscosity, self.symmetric, jacobian)
         if self.body_force is not None:
             _, det = physical_gradients(Xe, 1, POINTS)
             f = self.body_force(map_points(Xe, POINTS))                          # (E, G, 2)
