@@ -156,7 +156,8 @@ class Problem:
         if point.objective is None:
             state = point.state
             f = self.objective.value(self.model, state)
-            df_drho = self._adjoint(point).gradient(self.objective.partials(self.model, state))
+            with self.model.linear_algebra.blas():         # the model's BLAS threads, as its solves
+                df_drho = self._adjoint(point).gradient(self.objective.partials(self.model, state))
             point.objective = (f, self.map.transpose(point.gamma, state.params.beta, df_drho))
         return point.objective
 
@@ -171,7 +172,8 @@ class Problem:
             state = point.state
             d = self.scene.design
             solid = self.volume_fraction.value(self.model, state)
-            dvolume = self._adjoint(point).gradient(self.volume_fraction.partials(self.model, state))
+            with self.model.linear_algebra.blas():
+                dvolume = self._adjoint(point).gradient(self.volume_fraction.partials(self.model, state))
             dsolid = self.map.transpose(point.gamma, state.params.beta, dvolume)
             sign, fraction = (1.0, solid) if d.constraint == "solid" else (-1.0, 1.0 - solid)
             g = fraction / d.volume_fraction - 1.0
