@@ -40,8 +40,8 @@ BYTES_PER_FACTOR_ENTRY = 22.2   # 12 stored + the factorization's working space;
                                 # at 16 200-129 795 elements (SuperLU) with the fields' a_f
 FILL = {"flow": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured 12.6-13.9 / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
-ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 3.4e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move
-                                # on the iterative path (16 200-36 315 flow elements; 2e4-5.5e4 mesh)
+ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 2.7e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move
+                                # on the iterative path (16 200-64 980 flow elements; 5e3-1.6e5 mesh)
 COMMAND_FACTOR = {"solve": 1.0, "optimize": 1.43, "check-gradients": 1.43, "move": 1.0, "tune": 1.0,
                   "study": 1.0}  # peak over the solve model: optimize measured 1.39-1.46 at 16k-130k elements
 MESH_BASE_BYTES = 0.10 * GB     # tofsi mesh: the interpreter and the mesh alone
@@ -96,8 +96,9 @@ def estimate(scene, command: str = "solve", backend: str = "superlu", ranks: int
     iterative = backend == "iterative"
     split = ranks if backend == "petsc" else 1
     unknowns, entries, per_element, solver_bytes = {}, {}, 0.0, 0.0
+    solves = "move" if command == "study" else command          # a study's points are moves
     for field in FIELDS:
-        if field.active(scene, command):
+        if field.active(scene, solves):
             need = field.memory(grid)
             unknowns[field.title] = need.unknowns
             per_element += need.bytes_per_element
