@@ -189,10 +189,15 @@ class BlockSaddlePreconditioner:
                                  {"iterations": its, "relative_residual": relative, "size": M.shape[0]})
         return x
 
+    def solve_with(self, A, b: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """``A^{-1} b`` (``A^{-T} b``) for ``A`` this or a nearby matrix (a later Newton iterate's),
+        by FGMRES with this preconditioner to ``tol`` in the scaled norm (NumericalError otherwise)."""
+        return self._gmres(A.T if transpose else A, b, self._apply_transpose if transpose else self._apply)
+
     def solve(self, b: np.ndarray) -> np.ndarray:
         """``J^{-1} b`` by FGMRES to ``tol`` relative to ``|D^{-1/2} b|`` (NumericalError otherwise)."""
-        return self._gmres(self.J, b, self._apply)
+        return self.solve_with(self.J, b)
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
         """``J^{-T} b``, as :meth:`solve`."""
-        return self._gmres(self.J.T, b, self._apply_transpose)
+        return self.solve_with(self.J, b, transpose=True)

@@ -152,7 +152,12 @@ class RecyclingSolver:
         """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance."""
         if not np.any(b):
             return np.zeros_like(b)
-        if self._usable(A) and self.solver.preconditioner(True) is not None:
+        if self._usable(A) and hasattr(self.solver, "solve_with"):    # a solver with its own Krylov norm
+            try:
+                return self.solver.solve_with(A, b, transpose=True)
+            except NumericalError:
+                pass                                                  # stale: a new one below
+        elif self._usable(A) and self.solver.preconditioner(True) is not None:
             x, ok = self._krylov(A.T, b, transpose=True)
             if ok:
                 return x
