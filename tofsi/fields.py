@@ -144,7 +144,7 @@ class FlowEntry(Field):
         return scene.effects.fluid != "none" and command not in MOTION_ONLY
 
     def memory(self, grid):
-        return Memory(2 * grid.nodes9 + grid.nodes, "flow", 11.4e3)   # fitted with the structure's 1.0e3
+        return Memory(2 * grid.nodes9 + grid.nodes, "flow", 1.0e3)   # with the kernel in chunks (fitted)
 
     def build(self, model):
         return Flow(model.mesh, model.scene.fluid, stokes=model.scene.effects.fluid == "stokes",

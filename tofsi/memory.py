@@ -37,13 +37,15 @@ from tofsi.registry import FIELDS
 GB = 1024.0 ** 3
 BASE_BYTES = 0.15 * GB          # interpreter, NumPy/SciPy, the scene (measured 0.10 GB at import)
 BYTES_PER_FACTOR_ENTRY = 22.2   # 12 stored + the factorization's working space; fitted to tofsi solve
-                                # at 16 200-129 795 elements (SuperLU) with the fields' a_f
+                                # at 16 200-129 795 elements (SuperLU); the fields' a_f refitted after
+                                # the fluid kernel ran in chunks (16 200 and 64 980 elements)
 FILL = {"flow": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured 12.6-13.9 / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
-ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 2.7e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move
+ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 3.8e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move
                                 # on the iterative path (16 200-64 980 flow elements; 5e3-1.6e5 mesh)
-COMMAND_FACTOR = {"solve": 1.0, "optimize": 1.43, "check-gradients": 1.43, "move": 1.0, "tune": 1.0,
-                  "study": 1.0}  # peak over the solve model: optimize measured 1.39-1.46 at 16k-130k elements
+COMMAND_FACTOR = {"solve": 1.0, "optimize": 1.70, "check-gradients": 1.70, "move": 1.0, "tune": 1.0,
+                  "study": 1.0}  # peak over the solve model (above base): optimize measured 1.68-1.71
+                                 # at 16k-130k elements (its peak is the adjoint's, not the kernel's)
 MESH_BASE_BYTES = 0.10 * GB     # tofsi mesh: the interpreter and the mesh alone
 MESH_BYTES_PER_ELEMENT = 0.65e3   # fitted to tofsi mesh at 5e3-1.6e5 elements
 
