@@ -350,7 +350,8 @@ class Mover(ABC):
     # helpers ---------------------------------------------------------------
     def _solver(self, problem: MotionProblem) -> RecyclingSolver:
         """A solver for the mover's sequence of tangent/stiffness systems."""
-        kind = getattr(self.params, "linear_solver", "direct")
+        kind = ("amg" if getattr(problem.linear_algebra, "iterative", False)    # the model's iterative path
+                else getattr(self.params, "linear_solver", "direct"))
         near_null = rigid_body_modes(problem.points) if kind == "amg" else None
         perm = problem.ordering if kind == "direct" else None
         tol = getattr(self.params, "linear_tol", 1e-10)

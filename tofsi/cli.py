@@ -205,8 +205,8 @@ def _run(args, argv) -> int:
             overrides = scene_overrides(args)
             announce_large_scene(args.scene, args.quiet)
             scene = load_scene(args.scene, overrides)
+            check_memory(scene, args.command, args.max_memory, getattr(args, "jobs", 1))   # before building
             if args.command != "mesh":
-                check_memory(scene, args.command, args.max_memory)     # before any factorization
                 configure_linear_algebra(scene.solver)
             if mpi_rank() > 0:                     # mpiexec: rank 0 writes and prints
                 args.output, args.json, args.quiet = Path(tempfile.mkdtemp()), False, True

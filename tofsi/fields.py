@@ -148,7 +148,7 @@ class FlowEntry(Field):
         return scene.effects.fluid != "none" and command not in MOTION_ONLY
 
     def memory(self, grid):
-        return Memory(2 * grid.nodes9 + grid.nodes, "flow", 8.6e3)
+        return Memory(2 * grid.nodes9 + grid.nodes, "flow", 1.0e3)   # with the kernel in chunks (fitted)
 
     def build(self, model):
         return Flow(model.mesh, model.scene.fluid, stokes=model.scene.effects.fluid == "stokes",
@@ -194,7 +194,7 @@ class StructureEntry(Field):
         return scene.effects.structure != "none" and command not in MOTION_ONLY
 
     def memory(self, grid):
-        return Memory(2 * grid.nodes, "q1-vector", 0.0)
+        return Memory(2 * grid.nodes, "q1-vector", 1.0e3)
 
     def build(self, model):
         if model.flow is None:

@@ -194,7 +194,8 @@ class Problem:
     def _total(self, point: "DesignPoint", quantity) -> np.ndarray:
         """``dq/dgamma`` of a quantity (``value``, ``partials``) at a point: the adjoint, then the
         design map's transpose."""
-        d_rho = self._adjoint(point).gradient(quantity.partials(self.model, point.state))
+        with self.model.linear_algebra.blas():         # the model's BLAS threads, as its solves
+            d_rho = self._adjoint(point).gradient(quantity.partials(self.model, point.state))
         return self.map.transpose(point.gamma, point.state.params.beta, d_rho)
 
     def volume(self, gamma) -> float:

@@ -218,11 +218,13 @@ class OptimizerSettings:
 class SolverSettings:
     """Linear algebra: the sparse direct backend, threads and the memory limit (table ``[solver]``)."""
 
-    linear_solver: str = option("superlu", choices=("auto", "superlu", "pardiso", "petsc"),
+    linear_solver: str = option("superlu", choices=("auto", "superlu", "pardiso", "petsc", "iterative"),
                                 doc="sparse direct backend: superlu (always present, bitwise "
                                     "reproducible), pardiso (MKL, pip extra 'fast'), petsc "
                                     "(MUMPS through petsc4py, distributed under mpiexec), "
-                                    "auto (the fastest installed)")
+                                    "auto (the fastest installed); or iterative (no LU: "
+                                    "block-preconditioned FGMRES for the flow, AMG-CG for the "
+                                    "structure and the movers; docs/parallel.md)")
     threads: int = option(0, ge=0, le=4096, doc="threads of the sparse direct backend "
                                                 "(0: one per core)")
     blas_threads: int = option(1, ge=0, le=4096,

@@ -103,6 +103,8 @@ def resolve(name: str | None = None) -> str:
         name = os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or _default["name"]
     if name == "auto":
         return available()[0]
+    if name == "iterative":                     # the iterative path: what stays direct uses SuperLU
+        return "superlu"
     why = unavailable(name)
     if why is not None:
         raise InputError("solver.linear_solver", name, why)

@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 log = logging.getLogger(__name__)
+ITERATIVE = "iterative"          # the value of solver.linear_solver that selects the iterative path
 
 
 def environment_int(name: str, value: int) -> int:
@@ -42,11 +43,15 @@ def solver_threads(requested: int = 0) -> int:
 class LinearAlgebra:
     """backend : a concrete backend name (``superlu``, ``pardiso``, ``petsc``); threads :
     threads of the direct backend (PARDISO's; 0: leave the backend as it is); blas_threads :
-    OpenBLAS threads while the model computes (0: as the environment says)."""
+    OpenBLAS threads while the model computes (0: as the environment says); iterative : the
+    iterative path (``linear_solver = "iterative"``): the flow by block-preconditioned FGMRES,
+    the structure and the movers by AMG-CG; ``backend`` is then the direct backend of what
+    stays direct (the coupled block systems' diagonal blocks)."""
 
     backend: str = "superlu"
     threads: int = 0
     blas_threads: int = 0
+    iterative: bool = False
 
     @classmethod
     def from_settings(cls, settings) -> "LinearAlgebra":
@@ -56,7 +61,7 @@ class LinearAlgebra:
         from tofsi.linalg.backends import resolve
         name = os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or settings.linear_solver
         return cls(resolve(name), solver_threads(settings.threads),
-                   environment_int("TOFSI_BLAS_THREADS", settings.blas_threads))
+                   environment_int("TOFSI_BLAS_THREADS", settings.blas_threads), iterative=name == ITERATIVE)
 
     def direct(self, A, perm=None):
         """A :class:`~tofsi.linalg.DirectSolver` of ``A`` on this backend."""

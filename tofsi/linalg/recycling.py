@@ -68,6 +68,14 @@ class RecyclingSolver:
         self.factorizations = 0
         self.krylov_iterations = 0
 
+    def with_factorize(self, factorize) -> "RecyclingSolver":
+        """A solver for a new sequence of systems (the next design's) that starts from this
+        one's factorization or hierarchy and builds new ones with ``factorize`` (this one is
+        left as it is)."""
+        other = RecyclingSolver(factorize, self.max_iter, self.rtol, self.refresh_after)
+        other.solver, other.stale, other.fresh_cost = self.solver, self.stale, self.fresh_cost
+        return other
+
     def refresh(self, A) -> None:
         self.solver = None                 # release the old factors (and their backend slot) first
         log.info("new factorization (or hierarchy) of %d unknowns", A.shape[0])
@@ -144,7 +152,12 @@ class RecyclingSolver:
         """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance."""
         if not np.any(b):
             return np.zeros_like(b)
-        if self._usable(A) and self.solver.preconditioner(True) is not None:
+        if self._usable(A) and hasattr(self.solver, "solve_with"):    # a solver with its own Krylov norm
+            try:
+                return self.solver.solve_with(A, b, transpose=True)
+            except NumericalError:
+                pass                                                  # stale: a new one below
+        elif self._usable(A) and self.solver.preconditioner(True) is not None:
             x, ok = self._krylov(A.T, b, transpose=True)
             if ok:
                 return x

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofsi.blocks import ExplicitLinearization, FieldBlock, Linearization
-from tofsi.linalg import RecyclingSolver
+from tofsi.linalg import AMGSolver, RecyclingSolver, rigid_body_modes
 from tofsi.physics.flow import Flow
 from tofsi.physics.mesh_motion import MeshMotion
 from tofsi.physics.structure import Structure
@@ -83,7 +83,7 @@ class FlowLinearization(_EliminatedLinearization):
 
     def _solver_for(self):
         if self._solver is None:
-            self._solver = RecyclingSolver(self.flow.factorize)
+            self._solver = RecyclingSolver(self.flow.factorizer(self.X, self.rho, self.params))
         return self._solver
 
     @property
@@ -306,7 +306,11 @@ class MotionLinearization(Linearization):
     def _solver_for(self):
         if self._solver is None:
             motion = self.motion
-            self._solver = RecyclingSolver(lambda A: motion.linear_algebra.direct(A, perm=motion.base.ordering))
+            if motion.linear_algebra.iterative:           # AMG-GMRES (the blended tangent is not symmetric)
+                modes = rigid_body_modes(motion.base.points)
+                self._solver = RecyclingSolver(lambda A: AMGSolver(A, near_null=modes, symmetric=False))
+            else:
+                self._solver = RecyclingSolver(lambda A: motion.linear_algebra.direct(A, perm=motion.base.ordering))
         return self._solver
 
     def solve(self, b):

@@ -41,7 +41,8 @@ from tofsi.kept import Kept, input_key
 from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import resolve
 from tofsi.physics.flow_boundary import FlowBoundary
-from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_element,
+from tofsi.physics.flow_preconditioner import flow_preconditioner
+from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_elements,
                                         velocity_fields)
 from tofsi.physics.fluid_shape import fluid_shape
 
@@ -143,9 +144,9 @@ class Flow:
         """Element residuals and Jacobians on the mesh moved by ``x`` (or on corners ``Xe``)."""
         ve, pe = self.split(w)
         Xe = self.corners(x) if Xe is None else Xe
-        Re, Ke = fluid_element(Xe, ve, pe, self.alpha(rho, params),
-                               self.density if density is None else density,
-                               self.settings.viscosity, self.symmetric, jacobian)
+        Re, Ke = fluid_elements(Xe, ve, pe, self.alpha(rho, params),
+                                self.density if density is None else density,
+                                self.settings.viscosity, self.symmetric, jacobian)
         if self.body_force is not None:
             _, det = physical_gradients(Xe, 1, POINTS)
             f = self.body_force(map_points(Xe, POINTS))                          # (E, G, 2)
@@ -253,6 +254,17 @@ class Flow:
             self._perm = nested_dissection(self.grid(), last=self.pressure_dofs)
         return self.linear_algebra.direct(A, perm=self._perm)
 
+    def factorizer(self, x=None, rho=None, params=None):
+        """``A -> solver`` for the flow Jacobians on the mesh moved by ``x`` with densities ``rho``:
+        the LU (:meth:`factorize`), or on the iterative path the block preconditioner, whose
+        Schur complement approximation reads this mesh position and this friction
+        (:mod:`tofsi.physics.flow_preconditioner`)."""
+        if not self.linear_algebra.iterative:
+            return self.factorize
+        x = None if x is None else np.array(x, dtype=float)
+        rho = None if rho is None else np.array(rho, dtype=float)
+        return lambda A: flow_preconditioner(self, A, x, rho, params)
+
     def solve(self, x=None, rho=None, w0=None, params=None) -> tuple[np.ndarray, FlowReport]:
         """Steady flow on the mesh moved by ``x`` with densities ``rho``; raises on failure."""
         solution = self.newton_solve(x, rho, w0, params)
@@ -264,7 +276,11 @@ class Flow:
         factorization may precondition this solve's Newton steps; a new one by default)."""
         t0 = time.perf_counter()
         report = FlowReport()
-        solver = RecyclingSolver(self.factorize) if solver is None else solver
+        if self.linear_algebra.iterative:        # a previous design's hierarchy starts; new ones are this design's
+            factorize = self.factorizer(x, rho, params)
+            solver = RecyclingSolver(factorize) if solver is None else solver.with_factorize(factorize)
+        elif solver is None:
+            solver = RecyclingSolver(self.factorize)
         w = self.initial(params) if w0 is None else np.where(self.bc.is_fixed, self.boundary_values(params), w0)
         try:
             w, J = self._newton(w, x, rho, self.density, report, params, solver)

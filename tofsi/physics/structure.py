@@ -27,10 +27,12 @@ from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.interpolation import SIMP
-from tofsi.linalg import DirectSolver, LinearAlgebra, nested_dissection
+from tofsi.linalg import AMGSolver, DirectSolver, LinearAlgebra, nested_dissection, rigid_body_modes
 from tofsi.linalg.backends import resolve
 from tofsi.mesh import DESIGN, SOLID
 from tofsi.physics.fluid_load import FluidForce
+
+AMG_TOL = 1e-10          # AMG-CG relative residual of the iterative path (the gradient's needs)
 
 
 def check_held(mesh, clamped_nodes: np.ndarray, sides) -> None:
@@ -96,8 +98,12 @@ class Structure:
         """``S_u``: the constrained stiffness ``K_s(rho)`` [N/m]."""
         return self.bc.matrix(self.element_matrices(rho, params))
 
-    def factorize(self, rho, params=None) -> DirectSolver:
-        """The LU of ``K_s(rho)`` (nested-dissection ordering)."""
+    def factorize(self, rho, params=None) -> DirectSolver | AMGSolver:
+        """The LU of ``K_s(rho)`` (nested-dissection ordering), or on the iterative path its
+        smoothed-aggregation hierarchy (rigid-body modes) for CG to 1e-10 relative."""
+        if self.linear_algebra.iterative:
+            return AMGSolver(self.stiffness(rho, params), near_null=rigid_body_modes(self.mesh.points),
+                             tol=AMG_TOL)
         return self.linear_algebra.direct(self.stiffness(rho, params), perm=self.perm)
 
     # ---- fluid load --------------------------------------------------------------

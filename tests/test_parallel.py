@@ -1,0 +1,73 @@
+"""The flow assembled and solved by slabs on two MPI ranks (PETSc), against the serial LU solve.
+
+Skipped with the reason where petsc4py or mpiexec is absent (the default
+install is pip-only; ``docs/parallel.md`` tells how to get them).
+"""
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tofsi
+from tofsi.parallel.partition import SlabPartition, column_cuts
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = "examples/scenes/beam_in_channel_optimization.toml"
+
+
+def test_slabs_own_every_dof_once_and_contiguously():
+    """Three slabs of a 20 x 10 mesh: the renumbering is a permutation, each rank's owned
+    dofs are its range, velocities before pressures, and elements split by columns."""
+    scene = tofsi.load_scene(SCENE, ["mesh.h_min=0.1", "mesh.h_max=0.1"])
+    flow = tofsi.Problem(scene).model.flow
+    parts = [SlabPartition.of(flow, r, 3) for r in range(3)]
+    new = parts[0].new_of_old
+    assert np.array_equal(np.sort(new), np.arange(flow.size))
+    assert list(column_cuts(20, 3)) == [0, 7, 13, 20]
+    elements = np.concatenate([p.elements for p in parts])
+    assert np.array_equal(np.sort(elements), np.arange(flow.mesh.n_elements))
+    for p in parts:
+        lo, hi = p.owned
+        owned = np.concatenate([p.velocity, p.pressure])
+        assert np.array_equal(owned, np.arange(lo, hi))
+        assert p.velocity.max() < p.pressure.min()
+        # every dof an element of this slab touches is owned here or by a neighbouring rank
+        touched = new[flow.dofs[p.elements]]
+        owner = np.searchsorted(p.ranges, touched, side="right") - 1
+        assert set(np.unique(owner)) <= {p.rank - 1, p.rank, p.rank + 1}
+
+
+def petsc_or_skip():
+    try:
+        import petsc4py  # noqa: F401
+    except ImportError as err:
+        pytest.skip(f"petsc4py does not import ({err}): see docs/parallel.md")
+    mpiexec = shutil.which("mpiexec")
+    if mpiexec is None:
+        pytest.skip("mpiexec not found")
+    return mpiexec
+
+
+@pytest.mark.parametrize("amg", ["gamg", "hypre"])
+def test_flow_by_slabs_on_two_ranks_equals_the_serial_solve(tmp_path, amg):
+    """``mpiexec -n 2``: each rank assembles its own 400 elements; Newton with FGMRES and the
+    Schur fieldsplit converges to the serial LU-Newton state within 1e-8."""
+    mpiexec = petsc_or_skip()
+    sets = ["mesh.h_min=0.05", "mesh.h_max=0.05"]
+    out = tmp_path / "flow.npz"
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMPI_MCA_rmaps_base_oversubscribe": "1",
+           "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1"}
+    subprocess.run([mpiexec, "-n", "2", sys.executable, "tests/mpi_flow.py", str(out), amg, *sets],
+                   cwd=ROOT, env=env, check=True, timeout=300)
+    got = np.load(out)
+    assert int(got["ranks"]) == 2 and list(got["elements"]) == [400, 400]
+    flow = tofsi.Problem(tofsi.load_scene(SCENE, sets)).model.flow
+    w, _ = flow.solve(None, got["rho"])
+    nv = flow.n_velocity
+    assert np.linalg.norm((got["w"] - w)[:nv]) <= 1e-8 * np.linalg.norm(w[:nv])
+    assert np.linalg.norm((got["w"] - w)[nv:]) <= 1e-8 * np.linalg.norm(w[nv:])

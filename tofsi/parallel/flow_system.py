@@ -1,0 +1,296 @@
+"""The flow solved across MPI ranks with PETSc: each rank assembles its own slab, Krylov with fieldsplit.
+
+Under ``mpiexec -n P`` every rank builds the (replicated, O(n) integer)
+mesh and the :class:`~tofsi.parallel.partition.SlabPartition`, then:
+
+* evaluates the fluid element kernel on **its own elements only**
+  (:func:`tofsi.physics.fluid_kernel.fluid_element`, ``(E_r, 22, 22)``),
+  reading their dof values from the distributed state through one PETSc
+  scatter (its slab's dofs and the ghost layer on each cut);
+* adds them into a distributed AIJ matrix and vector
+  (``setValuesRCV``: all element blocks in one call, entries owned by the
+  neighbour stashed and sent at assembly); the Dirichlet rows and columns are
+  eliminated by ``zeroRowsColumns`` (identity on the diagonal), as
+  :class:`tofsi.fem.dirichlet.DirichletOperator` does serially;
+* solves the Newton steps with PETSc's FGMRES and a Schur-complement
+  fieldsplit (upper factorization): GAMG (or hypre's BoomerAMG) on the
+  velocity block, and on the pressure the Cahouet-Chabard approximation of
+  :mod:`tofsi.linalg.iterative`, ``-S~^{-1} = M_mu^{-1} + L_alpha^{-1}``,
+  applied by a Python PC (a diagonal scaling plus one GAMG cycle on
+  ``L_alpha = B (alpha M_v)^{-1} B^T``, formed with distributed matrix products).
+
+No rank holds a global matrix or vector; rank 0 gathers the state only
+when asked (:meth:`DistributedFlow.gather`). Flows with a body force or a
+closed boundary (pinned pressure) are not distributed (InputError).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from tofsi.errors import InputError, NumericalError
+from tofsi.iteration import backtracking, forcing_term
+from tofsi.linalg.iterative import FLOOR
+from tofsi.parallel.partition import SlabPartition
+from tofsi.physics.flow_preconditioner import element_areas
+from tofsi.physics.fluid_kernel import fluid_element
+
+log = logging.getLogger(__name__)
+CHUNK = 2048                # elements per kernel call (bounds the kernel's temporaries)
+
+
+def _petsc():
+    from petsc4py import PETSc
+    return PETSc
+
+
+class DarcySchurPC:
+    """Python PC on the pressure split: ``y = -(g / M_mu + AMG(L_alpha) g)``."""
+
+    def __init__(self, mass, L, amg: str):
+        PETSc = _petsc()
+        self.inverse_mass = mass.copy()
+        self.inverse_mass.reciprocal()
+        self.inner = PETSc.PC().create(comm=L.getComm())
+        self.inner.setOperators(L, L)
+        self.inner.setType(amg)
+        self.inner.setUp()
+        self.work = L.createVecLeft()
+
+    def apply(self, pc, g, y):
+        self.inner.apply(g, self.work)
+        y.pointwiseMult(g, self.inverse_mass)
+        y.axpy(1.0, self.work)
+        y.scale(-1.0)
+
+    def applyTranspose(self, pc, g, y):        # noqa: N802 - PETSc's name; both terms are symmetric
+        self.apply(pc, g, y)
+
+
+class DistributedFlow:
+    """The flow of ``flow`` (a :class:`tofsi.physics.flow.Flow`) assembled and solved by slabs.
+
+    amg : ``gamg`` (PETSc's smoothed aggregation) or ``hypre`` (BoomerAMG) for the velocity block
+    """
+
+    def __init__(self, flow, comm=None, amg: str = "gamg", rtol: float = 1e-10):
+        PETSc = _petsc()
+        if flow.body_force is not None or not flow.open_outlet:
+            raise InputError("solver.linear_solver", "petsc-distributed",
+                             "distributed flow needs an open outlet and no body force")
+        self.flow, self.amg, self.rtol = flow, amg, rtol
+        self.comm = PETSc.COMM_WORLD if comm is None else comm
+        self.part = SlabPartition.of(flow, self.comm.getRank(), self.comm.getSize())
+        p = self.part
+        lo, hi = p.owned
+        n = flow.size
+        self.dofs = p.new_of_old[flow.dofs[p.elements]].astype(PETSc.IntType)          # (E_r, 22) new numbering
+        self.ghosts = np.unique(self.dofs)                                               # (m,) needed dofs
+        self.local = np.searchsorted(self.ghosts, self.dofs)                            # (E_r, 22) into ghosts
+        fixed_new = p.new_of_old[flow.bc.fixed]
+        self.fixed_owned = np.sort(fixed_new[(fixed_new >= lo) & (fixed_new < hi)]).astype(PETSc.IntType)
+        self.values_new = np.zeros(n)
+        self.values_new[p.new_of_old] = flow.values                                      # boundary values
+        self.mat = PETSc.Mat().createAIJ(((hi - lo, n), (hi - lo, n)), comm=self.comm)
+        self.mat.setPreallocationNNZ(self._row_counts())
+        self.mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        self.w = self.mat.createVecRight()
+        self.r = self.mat.createVecLeft()
+        self.ghost_vec = PETSc.Vec().createSeq(self.ghosts.size, comm=PETSc.COMM_SELF)
+        self.scatter = PETSc.Scatter().create(self.w, PETSc.IS().createGeneral(self.ghosts, comm=PETSc.COMM_SELF),
+                                              self.ghost_vec, None)
+        self.is_v = PETSc.IS().createGeneral(p.velocity.astype(PETSc.IntType), comm=self.comm)
+        self.is_p = PETSc.IS().createGeneral(p.pressure.astype(PETSc.IntType), comm=self.comm)
+        self.krylov_iterations = 0
+        self.assembled = False
+
+    def _row_counts(self):
+        """Non-zeros of each owned row in the diagonal and off-diagonal blocks ``((m,), (m,))``,
+        from the elements touching owned dofs (exact preallocation: no slack to squeeze out)."""
+        lo, hi = self.part.owned
+        dofs = self.part.new_of_old[self.flow.dofs[self.part.halo_elements]]              # (E_h, 22)
+        owned = (dofs >= lo) & (dofs < hi)
+        k = owned.sum(axis=1)                                                            # owned rows per element
+        rows = np.repeat(dofs[owned], 22)
+        cols = np.repeat(dofs, k, axis=0).reshape(-1)                                    # each owned row: 22 cols
+        pairs = np.unique((rows - lo) * self.flow.size + cols)
+        del rows, cols
+        row, col = pairs // self.flow.size, pairs % self.flow.size
+        inside = (col >= lo) & (col < hi)
+        m = hi - lo
+        return (np.bincount(row[inside], minlength=m).astype(np.int32),
+                np.bincount(row[~inside], minlength=m).astype(np.int32))
+
+    # ---- state --------------------------------------------------------------------
+    def set_state(self, w_old: np.ndarray) -> None:
+        """The distributed state from a whole vector in the flow's numbering (every rank has it)."""
+        lo, hi = self.part.owned
+        inverse = np.empty_like(self.part.new_of_old)
+        inverse[self.part.new_of_old] = np.arange(inverse.size)
+        self.w.setArray(np.asarray(w_old)[inverse[lo:hi]])
+
+    def initial(self) -> None:
+        lo, hi = self.part.owned
+        self.w.setArray(self.values_new[lo:hi])
+
+    def gather(self):
+        """The whole state in the flow's numbering on rank 0 (None elsewhere)."""
+        PETSc = _petsc()
+        scatter, whole = PETSc.Scatter.toZero(self.w)
+        scatter.scatter(self.w, whole, PETSc.InsertMode.INSERT_VALUES, PETSc.ScatterMode.FORWARD)
+        out = None
+        if self.comm.getRank() == 0:
+            out = whole.getArray()[self.part.new_of_old].copy()
+        scatter.destroy()
+        whole.destroy()
+        return out
+
+    def _element_values(self, w: "PETSc.Vec"):
+        PETSc = _petsc()
+        self.scatter.scatter(w, self.ghost_vec, PETSc.InsertMode.INSERT_VALUES, PETSc.ScatterMode.FORWARD)
+        we = self.ghost_vec.getArray()[self.local]                                      # (E_r, 22)
+        return we[:, :18].reshape(-1, 9, 2), we[:, 18:]
+
+    # ---- assembly -----------------------------------------------------------------
+    def _corners(self, x):
+        mesh = self.flow.mesh
+        quads = mesh.quads[self.part.elements]
+        return (mesh.points[quads] if x is None else (mesh.points + x)[quads])       # (E_r, 4, 2)
+
+    def assemble(self, w, x, rho, density, jacobian: bool = True, params=None) -> float:
+        """Residual (``self.r``, fixed rows zeroed) and, if asked, the constrained Jacobian
+        (``self.mat``) of the slab's elements at ``w``; returns ``|R|``. The kernel runs on
+        chunks of :data:`CHUNK` elements, each added at once, so its temporaries stay small."""
+        PETSc = _petsc()
+        flow = self.flow
+        ADD = PETSc.InsertMode.ADD_VALUES
+        ve, pe = self._element_values(w)
+        alpha = flow.alpha(rho, params)[self.part.elements]
+        corners = self._corners(x)
+        self.r.zeroEntries()
+        if jacobian:
+            self.mat.zeroEntries()
+        for a in range(0, len(self.dofs), CHUNK):
+            b = a + CHUNK
+            Re, Ke = fluid_element(corners[a:b], ve[a:b], pe[a:b], alpha[a:b], density,
+                                   flow.settings.viscosity, flow.symmetric, jacobian)   # (c, 22), (c, 22, 22)
+            self.r.setValues(self.dofs[a:b].ravel(), Re.ravel(), addv=ADD)
+            if jacobian:
+                self.mat.setValuesRCV(self.dofs[a:b], self.dofs[a:b], Ke, addv=ADD)
+            del Re, Ke
+        self.r.assemble()
+        lo, _ = self.part.owned
+        self.r.getArray()[self.fixed_owned - lo] = 0.0
+        if jacobian:
+            self.mat.assemble()
+            self.mat.zeroRowsColumns(self.fixed_owned, diag=1.0)
+            self.assembled = True
+        return self.r.norm()
+
+    def _schur_parts(self, x, rho, params):
+        """``M_mu`` (pressure) and ``1/(alpha M_v)`` (velocity, 0 on fixed) as distributed vectors."""
+        PETSc = _petsc()
+        flow, p = self.flow, self.part
+        mu = flow.settings.viscosity
+        area = element_areas(self._corners(x))                                          # (E_r,)
+        alpha = np.maximum(flow.alpha(rho, params)[p.elements], FLOOR * mu / area)
+        lumped = np.concatenate([np.repeat(alpha * area / 9, 18).reshape(-1, 18),
+                                 np.repeat(area / (4 * mu), 4).reshape(-1, 4)], axis=1)  # (E_r, 22)
+        v = self.mat.createVecLeft()
+        v.setValues(self.dofs.ravel(), lumped.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
+        v.assemble()
+        mass = v.getSubVector(self.is_p).copy()
+        friction = v.getSubVector(self.is_v).copy()
+        friction.reciprocal()
+        lo, _ = p.owned
+        fixed_v = self.fixed_owned[np.isin(self.fixed_owned, p.velocity)]
+        local_v = np.searchsorted(p.velocity, fixed_v)
+        friction.getArray()[local_v] = 0.0
+        return mass, friction
+
+    def _ksp(self, x, rho, params):
+        """FGMRES with the fieldsplit Schur preconditioner of the assembled ``self.mat``."""
+        PETSc = _petsc()
+        mass, weights = self._schur_parts(x, rho, params)
+        B = self.mat.createSubMatrix(self.is_p, self.is_v)
+        Bt = self.mat.createSubMatrix(self.is_v, self.is_p)
+        Bt.diagonalScale(L=weights)
+        L = B.matMult(Bt)                                                                # (n_p, n_p) distributed
+        ksp = PETSc.KSP().create(comm=self.comm)
+        ksp.setOperators(self.mat)
+        ksp.setType("fgmres")
+        ksp.setGMRESRestart(50)
+        pc = ksp.getPC()
+        pc.setType("fieldsplit")
+        pc.setFieldSplitIS(("v", self.is_v), ("p", self.is_p))
+        pc.setFieldSplitType(PETSc.PC.CompositeType.SCHUR)
+        pc.setFieldSplitSchurFactType(PETSc.PC.SchurFactType.UPPER)
+        pc.setFieldSplitSchurPreType(PETSc.PC.SchurPreType.USER, L)
+        pc.setUp()
+        kv, kp = pc.getFieldSplitSubKSP()
+        kv.setType("preonly")
+        kv.getPC().setType(self.amg)
+        if self.amg == "hypre":
+            kv.getPC().setHYPREType("boomeramg")
+        kp.setType("preonly")
+        ppc = kp.getPC()
+        ppc.setType("python")
+        ppc.setPythonContext(DarcySchurPC(mass, L, self.amg))
+        ksp.setFromOptions()
+        return ksp
+
+    # ---- Newton ---------------------------------------------------------------------
+    def solve(self, x=None, rho=None, params=None, w0=None) -> dict:
+        """Steady flow (Newton, inexact Krylov steps, backtracking on ``|R|``); the state stays
+        distributed in ``self.w``. Returns the report (same on every rank)."""
+        flow, s = self.flow, self.flow.settings
+        t0 = time.perf_counter()
+        self.initial()                  # the force scale: |F| of the all-fluid boundary-value state
+        scale = max(self.assemble(self.w, x, None, flow.density, jacobian=False, params=params),
+                    1e-14 * max(1.0, abs(s.inlet_velocity)))
+        if w0 is not None:
+            self.set_state(w0)
+        target = s.newton_tol * scale
+        history: list[float] = []
+        norm = self.assemble(self.w, x, rho, flow.density, params=params)
+        ksp = self._ksp(x, rho, params)
+        dw = self.w.duplicate()
+        for it in range(s.newton_max_iter + 1):
+            history.append(norm)
+            log.info("distributed flow Newton %d: |R| = %.3e, target %.3e", it, norm, target)
+            if not np.isfinite(norm):
+                raise NumericalError("distributed flow solve: non-finite residual", {"history": history})
+            if norm <= target:
+                return {"converged": True, "newton_iterations": it, "residual_history": history,
+                        "krylov_iterations": self.krylov_iterations, "wall_time_s": time.perf_counter() - t0}
+            if it == s.newton_max_iter:
+                break
+            ksp.setTolerances(rtol=max(forcing_term(history, target), self.rtol), max_it=500)
+            if it > 0:
+                ksp.setOperators(self.mat)
+            self.r.scale(-1.0)
+            ksp.solve(self.r, dw)
+            self.krylov_iterations += ksp.getIterationNumber()
+            log.info("FGMRES (fieldsplit): %d iterations, reason %d", ksp.getIterationNumber(), ksp.getConvergedReason())
+            if ksp.getConvergedReason() < 0:
+                raise NumericalError("distributed flow: Krylov solve failed",
+                                     {"reason": ksp.getConvergedReason(), "history": history})
+            dw.getArray()[self.fixed_owned - self.part.owned[0]] = 0.0     # the boundary values stay
+            base = self.w.copy()
+
+            def trial(alpha):
+                self.w.waxpy(alpha, dw, base)
+                merit = self.assemble(self.w, x, rho, flow.density, jacobian=(alpha == 1.0), params=params)
+                return merit, merit
+            found = backtracking(norm, trial)
+            if found is None:
+                raise NumericalError("distributed flow: line search found no decrease", {"history": history})
+            alpha, norm = found
+            if alpha != 1.0:
+                self.w.waxpy(alpha, dw, base)
+                norm = self.assemble(self.w, x, rho, flow.density, params=params)
+        raise NumericalError(f"distributed flow: no convergence in {s.newton_max_iter} Newton iterations",
+                             {"history": history})
