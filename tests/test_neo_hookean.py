@@ -19,7 +19,7 @@ from scipy.optimize import brentq
 from reference_kernels import GAUSS2, q1_at
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.elasticity import element_stiffness, lame
-from tofsi.fem.neo_hookean import NeoHookeanKernel
+from tofsi.fem.neo_hookean import NeoHookeanKernel, NonlinearWeight
 from tofsi.interpolation import SIMP
 from tofsi.mesh import StructuredQuadMesh
 
@@ -103,9 +103,10 @@ def test_kernel_matches_the_loop_oracle():
     ue = random_displacements(Xe, 0.2)
     kernel = NeoHookeanKernel(Xe, NU)
     lam, mu = lame(1.0, NU)
-    Re, Ke, det_min = kernel.nonlinear(ue)
+    Re, Ke, det_min, W_kernel = kernel.nonlinear(ue)
     assert np.all(det_min > 0.3)                       # large, not inverted
     W = kernel.nonlinear_energy(ue)
+    np.testing.assert_allclose(W_kernel, W, rtol=1e-14)
     for e in range(Xe.shape[0]):
         R_o, K_o, W_o = oracle_quad(Xe[e], ue[e].reshape(4, 2), lam, mu)
         np.testing.assert_allclose(Re[e], R_o, rtol=1e-12, atol=1e-13 * np.abs(R_o).max())
@@ -121,7 +122,8 @@ def test_interpolated_forces_are_the_gradient_of_the_interpolated_energy():
     kernel = NeoHookeanKernel(Xe, NU)
     rng = np.random.default_rng(5)
     modulus, g = rng.uniform(0.5, 3.0, 6), rng.uniform(0.0, 1.0, 6)
-    Re, _, _ = kernel.evaluate(ue, modulus, g, tangent=False)
+    Re, _, _, W = kernel.evaluate(ue, modulus, g, tangent=False)
+    np.testing.assert_allclose(W, kernel.energy(ue, modulus, g), rtol=1e-13)
     h = 1e-30
     grad = np.stack([kernel.energy(ue + 1j * h * np.eye(8)[j], modulus, g).imag / h for j in range(8)], axis=1)
     np.testing.assert_allclose(Re, grad, rtol=1e-12, atol=1e-14 * np.abs(Re).max())
@@ -137,12 +139,12 @@ def test_a_rigid_rotation_of_30_degrees_is_stress_free():
     kernel = NeoHookeanKernel(Xe, NU)
     ue = u[mesh.quads].reshape(-1, 8)
     ones = np.ones(mesh.n_elements)
-    Re, _, det_min = kernel.evaluate(ue, 7.0 * ones, ones, tangent=False)
+    Re, _, det_min, W_rot = kernel.evaluate(ue, 7.0 * ones, ones, tangent=False)
     np.testing.assert_allclose(det_min, 1.0, rtol=1e-14)
     force_scale = 7.0 * np.abs(kernel.linear_forces(ue)).max()  # the linear element's spurious force
     assert force_scale > 0.1                                     # small strain is not objective
     assert np.abs(Re).max() < 1e-14 * force_scale
-    assert np.abs(kernel.nonlinear_energy(ue)).max() < 1e-15
+    assert np.abs(W_rot).max() < 1e-14
 
 
 @pytest.mark.parametrize("stretch", [0.6, 1.3, 2.5])
@@ -154,7 +156,7 @@ def test_a_homogeneous_plane_strain_stretch_gives_the_closed_form_traction(stret
     kernel = NeoHookeanKernel(mesh.points[mesh.quads], NU)
     E0 = 3.0e5
     ones = np.ones(mesh.n_elements)
-    Re, _, _ = kernel.evaluate(u[mesh.quads].reshape(-1, 8), E0 * ones, ones, tangent=False)
+    Re = kernel.evaluate(u[mesh.quads].reshape(-1, 8), E0 * ones, ones, tangent=False).forces
     f = np.zeros((mesh.n_nodes, 2))
     np.add.at(f, mesh.quads, Re.reshape(-1, 4, 2))
     lam, mu = lame(E0, NU)
@@ -179,7 +181,7 @@ class Block:
         self.g = np.full(mesh.n_elements, g)
 
     def forces(self, u):
-        Re, Ke, _ = self.kernel.evaluate(u[self.dofs], self.modulus, self.g)
+        Re, Ke, _, _ = self.kernel.evaluate(u[self.dofs], self.modulus, self.g)
         r = np.zeros(self.n)
         K = np.zeros((self.n, self.n))
         np.add.at(r, self.dofs, Re)
@@ -243,9 +245,9 @@ def test_the_kernel_is_the_linear_one_as_the_displacement_vanishes():
     Xe = distorted_quads(5, seed=7)
     kernel = NeoHookeanKernel(Xe, NU)
     ue = random_displacements(Xe, 1.0, seed=8)
-    _, K_at_zero, _ = kernel.nonlinear(np.zeros_like(ue))
+    K_at_zero = kernel.nonlinear(np.zeros_like(ue)).tangents
     np.testing.assert_allclose(K_at_zero, element_stiffness(Xe, *lame(1.0, NU)), rtol=1e-12, atol=1e-14)
-    gap = [np.abs(kernel.nonlinear(t * ue, tangent=False)[0] - t * kernel.linear_forces(ue)).max()
+    gap = [np.abs(kernel.nonlinear(t * ue, tangent=False).forces - t * kernel.linear_forces(ue)).max()
            for t in (1e-3, 5e-4)]
     assert gap[0] / gap[1] == pytest.approx(4.0, rel=0.01)
 
@@ -260,22 +262,27 @@ def test_tangent_taylor_rate_two(gray):
     modulus = rng.uniform(0.5, 2.0, 6)
     g = rng.uniform(0.05, 0.95, 6) if gray else np.ones(6)
     d = rng.standard_normal(ue.shape)
-    _, Ke, _ = kernel.evaluate(ue, modulus, g)
-    rates, r = taylor_rates(lambda e: kernel.evaluate(ue + e * d, modulus, g, tangent=False)[0],
+    Ke = kernel.evaluate(ue, modulus, g).tangents
+    rates, r = taylor_rates(lambda e: kernel.evaluate(ue + e * d, modulus, g, tangent=False).forces,
                             np.einsum("eab,eb->ea", Ke, d))
     assert np.all(rates > 1.9), (rates, r)
 
 
-def smooth_step(rho, beta=8.0, rho0=0.3):
-    """A smoothed Heaviside of the Wang et al. form (0 at rho = 0, 1 at rho = 1) and its derivative."""
-    rho = np.asarray(rho)
-    den = math.tanh(beta * rho0) + math.tanh(beta * (1 - rho0))
-    value = (math.tanh(beta * rho0) + np.tanh(beta * (rho - rho0))) / den
-    return value, beta / np.cosh(beta * (rho - rho0)) ** 2 / den
+@pytest.mark.parametrize("weight", [NonlinearWeight(), NonlinearWeight(0.3, 8.0)])
+def test_the_nonlinear_weight_is_a_smoothed_step_with_its_derivative(weight):
+    assert weight(0.0) == 0.0 and weight(1.0) == pytest.approx(1.0, abs=1e-15)
+    rho = np.linspace(0.0, 1.0, 201)
+    g = weight(rho)
+    assert np.all(np.diff(g) >= 0) and g.min() >= 0 and g.max() <= 1 + 1e-15
+    h = 1e-30                                              # complex step of the value
+    np.testing.assert_allclose(weight.derivative(rho), weight(rho + 1j * h).imag / h, rtol=1e-12, atol=1e-250)
+    if weight.sharpness == 500.0:                          # Wang et al.: linear below 0.01, nonlinear above 0.02
+        assert weight(0.005) < 0.08 and weight(0.02) > 0.99
 
 
 def test_density_derivative_taylor_rate_two():
-    """dR_e/drho_e with E(rho) by SIMP and g(rho) a smoothed step: both terms."""
+    """dR_e/drho_e with E(rho) by SIMP and g(rho) a smoothed step (Wang et al.'s form, made
+    wide enough that a step of 1e-2 resolves it): both terms."""
     Xe = distorted_quads(6, seed=21)
     kernel = NeoHookeanKernel(Xe, NU)
     rng = np.random.default_rng(22)
@@ -285,9 +292,10 @@ def test_density_derivative_taylor_rate_two():
     direction = rng.standard_normal(6)
 
     def forces(r):
-        return kernel.evaluate(ue, simp(r), smooth_step(r)[0], tangent=False)[0]
+        return kernel.evaluate(ue, simp(r), weight(r), tangent=False).forces
 
-    g, dg = smooth_step(rho)
+    weight = NonlinearWeight(0.3, 8.0)
+    g, dg = weight(rho), weight.derivative(rho)
     dR = kernel.density_vectors(ue, simp(rho), simp.derivative(rho), g, dg)
     rates, r = taylor_rates(lambda e: forces(rho + e * direction), dR * direction[:, None])
     assert np.all(rates > 1.9), (rates, r)
@@ -301,13 +309,12 @@ def test_g_zero_is_the_linear_element_exactly():
     ue = random_displacements(Xe, 3.0, seed=32)           # large: the nonlinear element would invert
     modulus = np.random.default_rng(33).uniform(0.1, 5.0, 5)
     zero = np.zeros(5)
-    Re, Ke, det_min = kernel.evaluate(ue, modulus, zero)
+    Re, Ke, det_min, W_zero = kernel.evaluate(ue, modulus, zero)
     np.testing.assert_array_equal(det_min, 1.0)
     np.testing.assert_array_equal(Re, modulus[:, None] * np.einsum("eab,eb->ea", kernel.K0, ue))
     np.testing.assert_array_equal(Ke, modulus[:, None, None] * kernel.K0)
-    W = kernel.energy(ue, modulus, zero)
-    np.testing.assert_allclose(W, 0.5 * np.einsum("ea,ea->e", ue, Re), rtol=1e-14)
-    assert kernel.nonlinear(ue)[0] is None                # the same displacement inverts g = 1
+    np.testing.assert_allclose(W_zero, 0.5 * np.einsum("ea,ea->e", ue, Re), rtol=1e-14)
+    assert kernel.nonlinear(ue).forces is None                # the same displacement inverts g = 1
 
 
 def test_an_inverted_element_is_reported_not_evaluated():
@@ -315,6 +322,6 @@ def test_an_inverted_element_is_reported_not_evaluated():
     kernel = NeoHookeanKernel(Xe, NU)
     ue = np.zeros((3, 8))
     ue[1, [4, 5]] = -1.5 * (Xe[1, 2] - Xe[1, 0])           # corner 2 pushed through corner 0
-    Re, Ke, det_min = kernel.evaluate(ue, np.ones(3), np.ones(3))
-    assert Re is None and Ke is None
+    Re, Ke, det_min, W = kernel.evaluate(ue, np.ones(3), np.ones(3))
+    assert Re is None and Ke is None and W is None
     assert det_min[1] < 0 and det_min[0] == pytest.approx(1.0) and det_min[2] == pytest.approx(1.0)

@@ -37,11 +37,49 @@ element exactly. Every function is complex-safe in ``u``, the modulus and
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
 import numpy as np
 
 from tofsi.fem.elasticity import element_stiffness, lame
-from tofsi.fem.geometry import inverse_2x2, physical_gradients
+from tofsi.fem.geometry import inverse_2x2, jacobians
 from tofsi.fem.quadrature import gauss_square
+from tofsi.fem.shapes import shape_functions
+
+
+@dataclass(frozen=True)
+class NonlinearWeight:
+    """The weight ``g(rho)`` of the nonlinear energy (Wang et al. 2014), a smoothed Heaviside::
+
+        g(rho) = [tanh(beta rho0) + tanh(beta (rho - rho0))] / [tanh(beta rho0) + tanh(beta (1 - rho0))]
+
+    ``g(0) = 0`` (void: linear), ``g(1) = 1`` (solid: neo-Hookean); ``threshold`` ``rho0``
+    and ``sharpness`` ``beta`` (Wang et al.: 0.01 and 500).
+    """
+
+    threshold: float = 0.01
+    sharpness: float = 500.0
+
+    def __call__(self, rho):
+        b, r0 = self.sharpness, self.threshold
+        return (math.tanh(b * r0) + np.tanh(b * (np.asarray(rho) - r0))) / (math.tanh(b * r0) + math.tanh(b * (1 - r0)))
+
+    def derivative(self, rho):
+        b, r0 = self.sharpness, self.threshold
+        t = np.exp(-2.0 * np.abs(b * (np.asarray(rho) - r0)))            # sech^2 z = 4 t / (1 + t)^2, no overflow
+        return b * 4.0 * t / (1.0 + t) ** 2 / (math.tanh(b * r0) + math.tanh(b * (1 - r0)))
+
+
+class ElementValues(NamedTuple):
+    """One evaluation of a batch of elements; forces, tangents and energy are None when the
+    nonlinear part inverts an element (``det F <= 0`` at a Gauss point: the energy is undefined)."""
+
+    forces: np.ndarray | None        # (E, 8) [N/m]
+    tangents: np.ndarray | None      # (E, 8, 8) [N/m^2] (None when not asked for)
+    det_min: np.ndarray              # (E,) smallest det F of the nonlinear part
+    energy: np.ndarray | None        # (E,) [J/m]
 
 
 class NeoHookeanKernel:
@@ -53,50 +91,81 @@ class NeoHookeanKernel:
 
     def __init__(self, Xe: np.ndarray, poisson_ratio: float):
         points, weights = gauss_square(2)
-        grad, det0 = physical_gradients(np.asarray(Xe, dtype=float), 1, points)   # (E, G, 4, 2), (E, G)
-        self.grad = grad
+        Xe = np.asarray(Xe, dtype=float)
+        _, dN = shape_functions(1, points)                             # (G, 4, 2) reference gradients
+        _, det0, inv = jacobians(Xe, points)                           # (E, G), (E, G, 2, 2): B = dxi/dX
+        E, G = det0.shape
+        self.n_elements, self.n_points = E, G
+        self.pull = inv
+        grad = np.matmul(dN, inv)                                      # (E, G, 4, 2) G_aJ = dN_am B_mJ
+        self.grad_rows = np.ascontiguousarray(grad.transpose(0, 2, 1, 3).reshape(E, 4, 2 * G))   # [e, a, (g, J)]
+        self.dN_rows = np.ascontiguousarray(dN.transpose(0, 2, 1).reshape(2 * G, 4))              # [(g, m), a]
+        self.dN_pairs = np.einsum("gam,gbn->gmnab", dN, dN).reshape(4 * G, 16)                   # [(g, m, n), (a, b)]
         self.weight = det0 * weights                                   # (E, G) w det J0 [m^2]
-        self.n_elements = grad.shape[0]
         self.lam, self.mu = lame(1.0, poisson_ratio)
         self.K0 = element_stiffness(Xe, self.lam, self.mu)             # (E, 8, 8) per unit modulus
-        # the constant part mu d_ik sum_g w det J0 G_a . G_b of the tangent, (E, 4, 4)
+        # sum_g w det J0 G_a.G_b (E, 4, 4) and sum_g w det J0 G_a (E, 4, 2): the constant parts of
+        # mu sum_g w det J0 G_a F^T = mu (sum_g w det J0 G_a + gram U) and of the tangent
         self.gradient_gram = np.einsum("eg,egaJ,egbJ->eab", self.weight, grad, grad)
+        self.gradient_integral = np.einsum("eg,egaJ->eaJ", self.weight, grad)
 
     # ---- the nonlinear element (per unit modulus) ---------------------------------------------
     def deformation_gradient(self, ue: np.ndarray) -> np.ndarray:
         """``F = I + grad_X u`` ``(E, G, 2, 2)`` at the Gauss points of element displacements ``(E, 8)``."""
-        U = np.asarray(ue).reshape(-1, 4, 2)                          # (E, a, i)
-        F = np.einsum("eai,egaJ->egiJ", U, self.grad)                  # (E, G, i, J)
+        E, G = self.n_elements, self.n_points
+        U = np.asarray(ue).reshape(E, 4, 2)                           # (E, a, i)
+        H = np.matmul(U.swapaxes(1, 2), self.grad_rows)                # (E, i, (g, J))
+        F = H.reshape(E, 2, G, 2).transpose(0, 2, 1, 3).copy()         # (E, G, i, J)
         F[..., 0, 0] += 1.0
         F[..., 1, 1] += 1.0
         return F
 
-    def nonlinear(self, ue: np.ndarray, tangent: bool = True):
-        """Neo-Hookean internal forces ``(E, 8)``, tangents ``(E, 8, 8)`` (or None) and the smallest
-        ``det F`` per element ``(E,)``; forces and tangents are None when an element is inverted
-        (``det F <= 0`` at a Gauss point: the energy is undefined there)."""
+    def nonlinear(self, ue: np.ndarray, tangent: bool = True) -> ElementValues:
+        """Neo-Hookean internal forces, tangents (if ``tangent``), smallest ``det F`` and
+        energies of element displacements ``ue`` ``(E, 8)``, per unit modulus.
+
+        With ``Q = B F^-1`` (so ``d_ai = sum_m dN_am Q_mi``), the sums over Gauss points and
+        reference gradients are one matrix product each with the constant tables ``dN_am``
+        and ``dN_am dN_bn`` (as :mod:`movers.yeoh_kernel`):
+        ``sum_g c d_ai = sum_(g, m) dN_am (c Q)_mi`` and
+        ``K_(ai)(bk) = sum_(g, m, n) dN_am dN_bn [c1 Q_mk Q_ni + c2 Q_mi Q_nk] + mu d_ik gram_ab``.
+        """
+        E, G = self.n_elements, self.n_points
         F = self.deformation_gradient(ue)
         J, Fi = inverse_2x2(F)                                         # (E, G), (E, G, 2, 2)
         det_min = J.real.min(axis=1)
         if np.any(det_min <= 0.0):
-            return None, None, det_min
+            return ElementValues(None, None, det_min, None)
         lam, mu, wt = self.lam, self.mu, self.weight
         log_J = np.log(J)                                              # (E, G)
-        d = np.matmul(self.grad, Fi)                                   # (E, G, 4, 2) spatial gradients
-        GF = np.matmul(self.grad, F.swapaxes(-1, -2))                  # (E, G, 4, 2) (G_a F^T)_i
+        trC = np.einsum("egiJ,egiJ->eg", F, F)
+        W = np.einsum("eg,eg->e", wt, 0.5 * mu * (trC - 2.0) - mu * log_J + 0.5 * lam * log_J ** 2)
+        Q = np.matmul(self.pull, Fi)                                   # (E, G, m, i)
         c = wt * (lam * log_J - mu)                                    # (E, G)
-        Re = np.einsum("eg,egai->eai", mu * wt, GF) + np.einsum("eg,egai->eai", c, d)
-        Re = Re.reshape(-1, 8)
+        U = np.asarray(ue).reshape(E, 4, 2)
+        cQ = (c[..., None, None] * Q).transpose(0, 3, 1, 2).reshape(2 * E, 2 * G)    # [(e, i), (g, m)]
+        Re = mu * (self.gradient_integral + np.matmul(self.gradient_gram, U))
+        Re += (cQ @ self.dN_rows).reshape(E, 2, 4).transpose(0, 2, 1)  # (E, a, i)
+        Re = Re.reshape(E, 8)
         if not tangent:
-            return Re, None, det_min
-        E, G = J.shape
-        D = d.reshape(E, G, 8)                                         # [(a, i)]
-        DD_swap = np.matmul((D * (-c)[..., None]).swapaxes(1, 2), D)   # sum_g (mu - lam ln J) d_ai d_bk
-        DD = np.matmul((D * (lam * wt)[..., None]).swapaxes(1, 2), D)  # sum_g lam d_ai d_bk
-        K = DD.reshape(E, 4, 2, 4, 2) + DD_swap.reshape(E, 4, 2, 4, 2).transpose(0, 1, 4, 3, 2)
-        K[:, :, 0, :, 0] += mu * self.gradient_gram
-        K[:, :, 1, :, 1] += mu * self.gradient_gram
-        return Re, K.reshape(E, 8, 8), det_min
+            return ElementValues(Re, None, det_min, W)
+        # A[(i, k), e, g, m, n] = c1 Q_mk Q_ni + c2 Q_mi Q_nk for (i, k) = 00, 01, 11, written per
+        # component (contiguous (E, G) operands); c1 = w (mu - lam ln J) = -c, c2 = w lam
+        c1, c12 = -c, lam * wt - c
+        q = [[Q[..., m, i] for i in range(2)] for m in range(2)]      # q[m][i] (E, G)
+        A = np.empty((3, E, G, 2, 2), dtype=Q.dtype)
+        for m in range(2):
+            for n in range(2):
+                A[0, ..., m, n] = c12 * q[m][0] * q[n][0]
+                A[2, ..., m, n] = c12 * q[m][1] * q[n][1]
+                A[1, ..., m, n] = c1 * q[m][1] * q[n][0] + (c12 - c1) * q[m][0] * q[n][1]
+        K00, K01, K11 = (A.reshape(3 * E, 4 * G) @ self.dN_pairs).reshape(3, E, 4, 4)
+        K = np.empty((E, 8, 8), dtype=Q.dtype)
+        K[:, 0::2, 0::2] = K00 + mu * self.gradient_gram
+        K[:, 0::2, 1::2] = K01
+        K[:, 1::2, 0::2] = K01.transpose(0, 2, 1)
+        K[:, 1::2, 1::2] = K11 + mu * self.gradient_gram
+        return ElementValues(Re, K, det_min, W)
 
     def nonlinear_energy(self, ue: np.ndarray) -> np.ndarray:
         """``int W_NL dV`` per element ``(E,)`` [J/m per Pa]; NaN where an element is inverted."""
@@ -112,29 +181,31 @@ class NeoHookeanKernel:
         return np.einsum("eab,eb->ea", self.K0, ue)
 
     # ---- the energy-interpolated element ------------------------------------------------------
-    def evaluate(self, ue: np.ndarray, modulus, g, tangent: bool = True):
-        """Interpolated internal forces ``(E, 8)``, tangents ``(E, 8, 8)`` (or None) and the smallest
-        ``det F`` of the nonlinear part ``g u`` per element ``(E,)``.
+    def evaluate(self, ue: np.ndarray, modulus, g, tangent: bool = True) -> ElementValues:
+        """Interpolated internal forces ``(E, 8)``, tangents ``(E, 8, 8)`` (if ``tangent``),
+        smallest ``det F`` of the nonlinear part ``g u`` and energies ``W_e`` ``(E,)``.
 
         modulus : ``E(rho)`` ``(E,)`` [Pa]; g : ``g(rho)`` ``(E,)`` (ones: plain SIMP).
-        Forces and tangents are None when the nonlinear part inverts an element.
         """
         modulus, g = np.asarray(modulus), np.asarray(g)
-        Rn, Kn, det_min = self.nonlinear(g[:, None] * ue, tangent)
+        Rn, Kn, det_min, Wn = self.nonlinear(g[:, None] * ue, tangent)
         if Rn is None:
-            return None, None, det_min
+            return ElementValues(None, None, det_min, None)
         linear = 1.0 - g * g                                           # (E,)
-        Re = modulus[:, None] * (g[:, None] * Rn + linear[:, None] * self.linear_forces(ue))
+        K0u = self.linear_forces(ue)
+        Re = modulus[:, None] * (g[:, None] * Rn + linear[:, None] * K0u)
+        We = modulus * (Wn + 0.5 * linear * np.einsum("ea,ea->e", ue, K0u))
         if not tangent:
-            return Re, None, det_min
-        Ke = modulus[:, None, None] * ((g * g)[:, None, None] * Kn + linear[:, None, None] * self.K0)
-        return Re, Ke, det_min
+            return ElementValues(Re, None, det_min, We)
+        Kn *= (modulus * g * g)[:, None, None]                         # Kn is this call's own array
+        Kn += (modulus * linear)[:, None, None] * self.K0
+        return ElementValues(Re, Kn, det_min, We)
 
     def density_vectors(self, ue: np.ndarray, modulus, dmodulus, g, dg) -> np.ndarray:
         """``dR_e/drho_e`` ``(E, 8)`` from ``E(rho)``, ``E'(rho)``, ``g(rho)``, ``g'(rho)`` ``(E,)``
         (the formula in the module docstring); NaN where the nonlinear part is inverted."""
         modulus, dmodulus, g, dg = (np.asarray(a) for a in (modulus, dmodulus, g, dg))
-        Rn, Kn, det_min = self.nonlinear(g[:, None] * ue)
+        Rn, Kn, _, _ = self.nonlinear(g[:, None] * ue)
         if Rn is None:
             return np.full(np.shape(ue), np.nan)
         K0u = self.linear_forces(ue)
