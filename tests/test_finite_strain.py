@@ -18,7 +18,7 @@ from tofsi.fem.assembly import element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import lame
 from tofsi.interpolation import SIMP
-from tofsi.linalg import nested_dissection
+from tofsi.linalg import DirectSolver, nested_dissection
 from tofsi.mesh import StructuredQuadMesh
 from tofsi.physics.finite_strain import FiniteStrainElasticity
 
@@ -34,7 +34,8 @@ def structure(mesh, clamped_sides, **kw):
     clamped = np.unique(np.concatenate([mesh.side_nodes(s) for s in clamped_sides]))
     bc = DirichletOperator(dofs, dofs, 2 * mesh.n_nodes, element_dofs(clamped[:, None], 2).ravel())
     grid = np.repeat(mesh.grid_positions(), 2, axis=0)
-    return FiniteStrainElasticity(mesh, settings(**kw), bc, dofs, nested_dissection(grid))
+    perm = nested_dissection(grid)
+    return FiniteStrainElasticity(mesh, settings(**kw), bc, dofs, lambda A: DirectSolver(A, perm=perm))
 
 
 def edge_traction(mesh, side, traction):

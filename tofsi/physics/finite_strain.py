@@ -41,7 +41,7 @@ from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.neo_hookean import ElementValues, NeoHookeanKernel, NonlinearWeight
 from tofsi.interpolation import SIMP
 from tofsi.iteration import forcing_term
-from tofsi.linalg import DirectSolver, RecyclingSolver
+from tofsi.linalg import RecyclingSolver
 
 log = logging.getLogger(__name__)
 ROUND_OFF = 1e3 * np.finfo(float).eps      # attainable |S| relative to the internal forces' size
@@ -92,11 +92,13 @@ class FiniteStrainElasticity:
     ``interpolation``, ``energy_threshold``, ``energy_sharpness``,
     ``newton_tol``, ``max_newton``, ``max_cutbacks``); bc : the clamped dofs'
     :class:`~tofsi.fem.dirichlet.DirichletOperator`; dofs : element dofs
-    ``(E, 8)``; perm : the fill-reducing ordering of the tangent.
+    ``(E, 8)``; factorize : ``A -> `` a direct solver of the tangent ``A`` (the
+    structure's backend and ordering).
     """
 
-    def __init__(self, mesh, settings, bc, dofs, perm):
-        self.mesh, self.settings, self.bc, self.dofs, self.perm = mesh, settings, bc, dofs, perm
+    def __init__(self, mesh, settings, bc, dofs, factorize):
+        self.mesh, self.settings, self.bc, self.dofs = mesh, settings, bc, dofs
+        self.factorize = factorize
         self.size = bc.size
         self.kernel = NeoHookeanKernel(mesh.points[mesh.quads], settings.poisson_ratio)
         self.weight = (None if settings.interpolation == "simp"
@@ -178,9 +180,6 @@ class FiniteStrainElasticity:
         report.factorizations = solver.factorizations - factorizations
         report.wall_time_s = time.perf_counter() - t0
         return FiniteStrainSolution(u, report, solver)
-
-    def factorize(self, A) -> DirectSolver:
-        return DirectSolver(A, perm=self.perm)
 
     def _load_steps(self, f, rho, simp, solver, report: FiniteStrainReport) -> np.ndarray:
         """``t f`` from ``t = 0`` to 1: a step that fails is halved, one that converged in a few
