@@ -93,7 +93,8 @@ def run(scene, args, ctx) -> dict:
     elif model.structure is not None:                # one-way: the linear model's answer, flagged
         beyond = model.structure.displacement_beyond_channel(state.u)
         if beyond:
-            warnings.append(beyond + ": the small-strain answer for a design far too soft for the "
+            strain = "finite-strain" if model.structure.nonlinear else "small-strain"
+            warnings.append(beyond + f": the {strain} answer for a design far too soft for the "
                             "flow, not a physical state (optimize starts from it); for a designed "
                             "structure: --design FILE (the design.npy of tofsi optimize) with --stage last")
     for text in warnings:

@@ -86,10 +86,11 @@ class NeoHookeanKernel:
     """Internal forces, tangents and energies of a fixed reference mesh of Q1 quads.
 
     Xe : reference corners ``(E, 4, 2)`` [m]; poisson_ratio : ``nu`` (the Lame
-    parameters are per unit Young's modulus; moduli are per-element inputs).
+    parameters are per unit Young's modulus; moduli are per-element inputs);
+    K0 : the small-strain stiffness per unit modulus ``(E, 8, 8)`` if already made.
     """
 
-    def __init__(self, Xe: np.ndarray, poisson_ratio: float):
+    def __init__(self, Xe: np.ndarray, poisson_ratio: float, K0: np.ndarray | None = None):
         points, weights = gauss_square(2)
         Xe = np.asarray(Xe, dtype=float)
         _, dN = shape_functions(1, points)                             # (G, 4, 2) reference gradients
@@ -103,7 +104,7 @@ class NeoHookeanKernel:
         self.dN_pairs = np.einsum("gam,gbn->gmnab", dN, dN).reshape(4 * G, 16)                   # [(g, m, n), (a, b)]
         self.weight = det0 * weights                                   # (E, G) w det J0 [m^2]
         self.lam, self.mu = lame(1.0, poisson_ratio)
-        self.K0 = element_stiffness(Xe, self.lam, self.mu)             # (E, 8, 8) per unit modulus
+        self.K0 = element_stiffness(Xe, self.lam, self.mu) if K0 is None else K0   # (E, 8, 8) per unit modulus
         # sum_g w det J0 G_a.G_b (E, 4, 4) and sum_g w det J0 G_a (E, 4, 2): the constant parts of
         # mu sum_g w det J0 G_a F^T = mu (sum_g w det J0 G_a + gram U) and of the tangent
         self.gradient_gram = np.einsum("eg,egaJ,egbJ->eab", self.weight, grad, grad)

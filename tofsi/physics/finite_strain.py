@@ -93,14 +93,15 @@ class FiniteStrainElasticity:
     ``newton_tol``, ``max_newton``, ``max_cutbacks``); bc : the clamped dofs'
     :class:`~tofsi.fem.dirichlet.DirichletOperator`; dofs : element dofs
     ``(E, 8)``; factorize : ``A -> `` a direct solver of the tangent ``A`` (the
-    structure's backend and ordering).
+    structure's backend and ordering); K0 : the small-strain element stiffness per
+    unit modulus, if already made.
     """
 
-    def __init__(self, mesh, settings, bc, dofs, factorize):
+    def __init__(self, mesh, settings, bc, dofs, factorize, K0=None):
         self.mesh, self.settings, self.bc, self.dofs = mesh, settings, bc, dofs
         self.factorize = factorize
         self.size = bc.size
-        self.kernel = NeoHookeanKernel(mesh.points[mesh.quads], settings.poisson_ratio)
+        self.kernel = NeoHookeanKernel(mesh.points[mesh.quads], settings.poisson_ratio, K0)
         self.weight = (None if settings.interpolation == "simp"
                        else NonlinearWeight(settings.energy_threshold, settings.energy_sharpness))
 
