@@ -87,3 +87,26 @@ def test_dropping_the_blend_derivative_breaks_the_taylor_test(monkeypatch):
     monkeypatch.setattr(FiniteStrainElasticity, "density_vectors", without_blend_derivative)
     t, err, _ = check_total_derivative(P, gamma, d)
     assert t.rates[-1] < 1.5 and err > 1e-3, (t, err)          # rates fall towards 1
+
+
+def test_check_gradients_command_on_a_coarse_two_way_scene(tmp_path, monkeypatch, capsys):
+    """``tofsi check-gradients --set structure.model=neo-hookean`` passes on a coarse two-way scene
+    (Yeoh mover, monolithic Newton) and fails (status 1) when S_rho is 1 % off."""
+    import json
+    from tofsi.cli import main
+    from conftest import scene_path
+    args = ["check-gradients", str(scene_path("beam_in_channel_optimization")), "--output", str(tmp_path),
+            "--json", "-q", "--overwrite"]
+    for key in ("mesh.h_min=0.1", "mesh.h_max=0.1", "effects.coupling=two-way", "mover.name=yeoh",
+                "structure.youngs_modulus=1e4", "structure.load_exponent=3", "structure.model=neo-hookean"):
+        args += ["--set", key]
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["passed"] and {r["check"] for r in out["checks"]} >= {"S_u", "S_w", "S_x", "S_rho", "D_u",
+                                                                      "objective compliance"}
+    original = FiniteStrainElasticity.density_vectors
+    monkeypatch.setattr(FiniteStrainElasticity, "density_vectors",
+                        lambda self, u, rho, simp: 1.01 * original(self, u, rho, simp))
+    assert main(args) == 1
+    out = json.loads(capsys.readouterr().out)
+    assert "S_rho" in {r["check"] for r in out["checks"] if not r["passed"]}
