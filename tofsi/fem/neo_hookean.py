@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from tofsi.fem.elasticity import element_stiffness, lame
-from tofsi.fem.geometry import inverse_2x2, jacobians
+from tofsi.fem.geometry import jacobians
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
 
@@ -97,11 +97,11 @@ class NeoHookeanKernel:
         _, det0, inv = jacobians(Xe, points)                           # (E, G), (E, G, 2, 2): B = dxi/dX
         E, G = det0.shape
         self.n_elements, self.n_points = E, G
-        self.pull = inv
         grad = np.matmul(dN, inv)                                      # (E, G, 4, 2) G_aJ = dN_am B_mJ
-        self.grad_rows = np.ascontiguousarray(grad.transpose(0, 2, 1, 3).reshape(E, 4, 2 * G))   # [e, a, (g, J)]
-        self.dN_rows = np.ascontiguousarray(dN.transpose(0, 2, 1).reshape(2 * G, 4))              # [(g, m), a]
-        self.dN_pairs = np.einsum("gam,gbn->gmnab", dN, dN).reshape(4 * G, 16)                   # [(g, m, n), (a, b)]
+        self.grad_rows = np.ascontiguousarray(grad.transpose(0, 2, 3, 1).reshape(E, 4, 2 * G))   # [e, a, (J, g)]
+        self.pull = np.ascontiguousarray(inv.transpose(2, 3, 0, 1))    # B_mJ (2, 2, E, G), component first
+        self.dN = np.ascontiguousarray(dN.transpose(2, 0, 1))          # dN_am as [m, g, a] (2, G, 4)
+        self.dN_pairs = np.ascontiguousarray(np.einsum("gam,gbn->mngab", dN, dN).reshape(2, 2, G, 16))
         self.weight = det0 * weights                                   # (E, G) w det J0 [m^2]
         self.lam, self.mu = lame(1.0, poisson_ratio)
         self.K0 = element_stiffness(Xe, self.lam, self.mu) if K0 is None else K0   # (E, 8, 8) per unit modulus
@@ -111,12 +111,15 @@ class NeoHookeanKernel:
         self.gradient_integral = np.einsum("eg,egaJ->eaJ", self.weight, grad)
 
     # ---- the nonlinear element (per unit modulus) ---------------------------------------------
-    def deformation_gradient(self, ue: np.ndarray) -> np.ndarray:
-        """``F = I + grad_X u`` ``(E, G, 2, 2)`` at the Gauss points of element displacements ``(E, 8)``."""
+    def displacement_gradient(self, ue: np.ndarray) -> np.ndarray:
+        """``H = grad_X u`` as ``(E, i, J, G)`` at the Gauss points of element displacements ``(E, 8)``."""
         E, G = self.n_elements, self.n_points
         U = np.asarray(ue).reshape(E, 4, 2)                           # (E, a, i)
-        H = np.matmul(U.swapaxes(1, 2), self.grad_rows)                # (E, i, (g, J))
-        F = H.reshape(E, 2, G, 2).transpose(0, 2, 1, 3).copy()         # (E, G, i, J)
+        return np.matmul(U.swapaxes(1, 2), self.grad_rows).reshape(E, 2, 2, G)
+
+    def deformation_gradient(self, ue: np.ndarray) -> np.ndarray:
+        """``F = I + grad_X u`` ``(E, G, 2, 2)`` at the Gauss points of element displacements ``(E, 8)``."""
+        F = self.displacement_gradient(ue).transpose(0, 3, 1, 2).copy()
         F[..., 0, 0] += 1.0
         F[..., 1, 1] += 1.0
         return F
@@ -125,48 +128,52 @@ class NeoHookeanKernel:
         """Neo-Hookean internal forces, tangents (if ``tangent``), smallest ``det F`` and
         energies of element displacements ``ue`` ``(E, 8)``, per unit modulus.
 
-        With ``Q = B F^-1`` (so ``d_ai = sum_m dN_am Q_mi``), the sums over Gauss points and
-        reference gradients are one matrix product each with the constant tables ``dN_am``
-        and ``dN_am dN_bn`` (as :mod:`movers.yeoh_kernel`):
-        ``sum_g c d_ai = sum_(g, m) dN_am (c Q)_mi`` and
-        ``K_(ai)(bk) = sum_(g, m, n) dN_am dN_bn [c1 Q_mk Q_ni + c2 Q_mi Q_nk] + mu d_ik gram_ab``.
+        Gauss-point quantities are held component by component (``(E, G)`` arrays). With
+        ``Q = B F^-1`` (so ``d_ai = sum_m dN_am Q_mi``) the sums over Gauss points and reference
+        gradients are matrix products with the constant tables ``dN_am`` and ``dN_am dN_bn``
+        (as :mod:`movers.yeoh_kernel`): ``sum_g c d_ai = sum_(g, m) (c Q_mi) dN_am`` and
+        ``K_(ai)(bk) = sum_(m, n) sum_g [c1 Q_mk Q_ni + c2 Q_mi Q_nk] dN_am dN_bn + mu d_ik gram_ab``.
         """
         E, G = self.n_elements, self.n_points
-        F = self.deformation_gradient(ue)
-        J, Fi = inverse_2x2(F)                                         # (E, G), (E, G, 2, 2)
+        H = self.displacement_gradient(ue)
+        F = [[1.0 + H[:, 0, 0], H[:, 0, 1]], [H[:, 1, 0], 1.0 + H[:, 1, 1]]]    # F[i][J] (E, G)
+        J = F[0][0] * F[1][1] - F[0][1] * F[1][0]
         det_min = J.real.min(axis=1)
         if np.any(det_min <= 0.0):
             return ElementValues(None, None, det_min, None)
         lam, mu, wt = self.lam, self.mu, self.weight
         log_J = np.log(J)                                              # (E, G)
-        trC = np.einsum("egiJ,egiJ->eg", F, F)
+        trC = F[0][0] ** 2 + F[0][1] ** 2 + F[1][0] ** 2 + F[1][1] ** 2
         W = np.einsum("eg,eg->e", wt, 0.5 * mu * (trC - 2.0) - mu * log_J + 0.5 * lam * log_J ** 2)
-        Q = np.matmul(self.pull, Fi)                                   # (E, G, m, i)
+        Fi = [[F[1][1] / J, -F[0][1] / J], [-F[1][0] / J, F[0][0] / J]]       # (F^-1)[J][i]
+        B = self.pull
+        Q = [[B[m, 0] * Fi[0][i] + B[m, 1] * Fi[1][i] for i in range(2)] for m in range(2)]   # Q[m][i]
         c = wt * (lam * log_J - mu)                                    # (E, G)
         U = np.asarray(ue).reshape(E, 4, 2)
-        cQ = (c[..., None, None] * Q).transpose(0, 3, 1, 2).reshape(2 * E, 2 * G)    # [(e, i), (g, m)]
-        Re = mu * (self.gradient_integral + np.matmul(self.gradient_gram, U))
-        Re += (cQ @ self.dN_rows).reshape(E, 2, 4).transpose(0, 2, 1)  # (E, a, i)
+        Re = mu * (self.gradient_integral + np.matmul(self.gradient_gram, U))        # (E, a, i)
+        for i in range(2):
+            Re[:, :, i] += (c * Q[0][i]) @ self.dN[0] + (c * Q[1][i]) @ self.dN[1]
         Re = Re.reshape(E, 8)
         if not tangent:
             return ElementValues(Re, None, det_min, W)
-        # A[(i, k), e, g, m, n] = c1 Q_mk Q_ni + c2 Q_mi Q_nk for (i, k) = 00, 01, 11, written per
-        # component (contiguous (E, G) operands); c1 = w (mu - lam ln J) = -c, c2 = w lam
+        # A[(i, k)] = c1 Q_mk Q_ni + c2 Q_mi Q_nk for (i, k) = 00, 01, 11 and each (m, n);
+        # c1 = w (mu - lam ln J) = -c, c2 = w lam
         c1, c12 = -c, lam * wt - c
-        q = [[Q[..., m, i] for i in range(2)] for m in range(2)]      # q[m][i] (E, G)
-        A = np.empty((3, E, G, 2, 2), dtype=Q.dtype)
+        K = np.zeros((3 * E, 16), dtype=J.dtype)                       # [((i, k), e), (a, b)]
+        A = np.empty((3, E, G), dtype=J.dtype)
         for m in range(2):
             for n in range(2):
-                A[0, ..., m, n] = c12 * q[m][0] * q[n][0]
-                A[2, ..., m, n] = c12 * q[m][1] * q[n][1]
-                A[1, ..., m, n] = c1 * q[m][1] * q[n][0] + (c12 - c1) * q[m][0] * q[n][1]
-        K00, K01, K11 = (A.reshape(3 * E, 4 * G) @ self.dN_pairs).reshape(3, E, 4, 4)
-        K = np.empty((E, 8, 8), dtype=Q.dtype)
-        K[:, 0::2, 0::2] = K00 + mu * self.gradient_gram
-        K[:, 0::2, 1::2] = K01
-        K[:, 1::2, 0::2] = K01.transpose(0, 2, 1)
-        K[:, 1::2, 1::2] = K11 + mu * self.gradient_gram
-        return ElementValues(Re, K, det_min, W)
+                A[0] = c12 * Q[m][0] * Q[n][0]
+                A[1] = c1 * Q[m][1] * Q[n][0] + (c12 - c1) * Q[m][0] * Q[n][1]
+                A[2] = c12 * Q[m][1] * Q[n][1]
+                K += A.reshape(3 * E, G) @ self.dN_pairs[m, n]
+        K00, K01, K11 = K.reshape(3, E, 4, 4)
+        Ke = np.empty((E, 8, 8), dtype=J.dtype)
+        Ke[:, 0::2, 0::2] = K00 + mu * self.gradient_gram
+        Ke[:, 0::2, 1::2] = K01
+        Ke[:, 1::2, 0::2] = K01.transpose(0, 2, 1)
+        Ke[:, 1::2, 1::2] = K11 + mu * self.gradient_gram
+        return ElementValues(Re, Ke, det_min, W)
 
     def nonlinear_energy(self, ue: np.ndarray) -> np.ndarray:
         """``int W_NL dV`` per element ``(E,)`` [J/m per Pa]; NaN where an element is inverted."""
