@@ -41,6 +41,7 @@ from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.neo_hookean import ElementValues, NeoHookeanKernel, NonlinearWeight
 from tofsi.interpolation import SIMP
 from tofsi.iteration import forcing_term
+from tofsi.kept import Kept, input_key
 from tofsi.linalg import RecyclingSolver
 
 log = logging.getLogger(__name__)
@@ -49,6 +50,11 @@ ROUND_OFF = 1e3 * np.finfo(float).eps      # attainable |S| relative to the inte
 # the void's (contrast E0 / Emin), so a step solved to 10 % of |S| can leave the soft modes
 # unresolved (a bending beam near a wall: 9 Newton iterations instead of 5 at 6 % deflection).
 FORCING_CAP = 1e-2
+# Elements whose blend g(rho) is at most this are evaluated as linear: W_NL(g u) - W_L(g u) is
+# O(g^3 |grad u|^3), so their forces and tangents differ from the linear element's by
+# O(g^3 |grad u|) relative (1e-18 for |grad u| = 1), and the void of a design (rho ~ 1e-6
+# after projection, g ~ 5e-8) skips the kernel.
+LINEAR_BELOW = 1e-6
 
 
 @dataclass
@@ -104,6 +110,7 @@ class FiniteStrainElasticity:
         self.kernel = NeoHookeanKernel(mesh.points[mesh.quads], settings.poisson_ratio, K0)
         self.weight = (None if settings.interpolation == "simp"
                        else NonlinearWeight(settings.energy_threshold, settings.energy_sharpness))
+        self._restricted = Kept()            # the kernel of the last set of nonlinear elements
 
     # ---- element values -------------------------------------------------------------------
     def nonlinear_weight(self, rho) -> tuple[np.ndarray, np.ndarray]:
@@ -112,6 +119,41 @@ class FiniteStrainElasticity:
         if self.weight is None:
             return np.ones_like(rho), np.zeros_like(rho)
         return self.weight(rho), self.weight.derivative(rho)
+
+    def nonlinear_elements(self, rho) -> np.ndarray:
+        """The elements evaluated by the neo-Hookean kernel: ``g(rho) > LINEAR_BELOW``."""
+        return np.flatnonzero(self.nonlinear_weight(rho)[0] > LINEAR_BELOW)
+
+    def _kernel_of(self, elements: np.ndarray) -> NeoHookeanKernel:
+        if elements.size == self.kernel.n_elements:
+            return self.kernel
+        quads = self.mesh.quads[elements]
+        return self._restricted.get(input_key(elements), lambda: NeoHookeanKernel(
+            self.mesh.points[quads], self.settings.poisson_ratio, self.kernel.K0[elements]))
+
+    def _values(self, u, rho, simp: SIMP, tangent: bool) -> ElementValues:
+        """The elements' values: the neo-Hookean kernel's on the nonlinear elements, the linear
+        element's (``E K0 u``, ``E K0``, ``det F = 1``) elsewhere."""
+        g, _ = self.nonlinear_weight(rho)
+        modulus = simp(rho)
+        ue = np.asarray(u)[self.dofs]
+        nl = self.nonlinear_elements(rho)
+        if nl.size == g.size:
+            return self.kernel.evaluate(ue, modulus, g, tangent)
+        part = self._kernel_of(nl).evaluate(ue[nl], modulus[nl], g[nl], tangent)
+        det_min = np.ones(g.size)
+        det_min[nl] = part.det_min
+        if part.forces is None:
+            return ElementValues(None, None, det_min, None)
+        K0u = self.kernel.linear_forces(ue)
+        Re = modulus[:, None] * K0u
+        We = 0.5 * modulus * np.einsum("ea,ea->e", ue, K0u)
+        Re[nl], We[nl] = part.forces, part.energy
+        Ke = None
+        if tangent:
+            Ke = modulus[:, None, None] * self.kernel.K0
+            Ke[nl] = part.tangents
+        return ElementValues(Re, Ke, det_min, We)
 
     def element_values(self, u, rho, simp: SIMP, tangent: bool = True):
         """Element internal forces ``(E, 8)``, tangents ``(E, 8, 8)`` (or None) and smallest
@@ -131,18 +173,24 @@ class FiniteStrainElasticity:
         return self.bc.matrix(self.element_values(u, rho, simp)[1])
 
     def density_vectors(self, u, rho, simp: SIMP) -> np.ndarray:
-        """``dR_int,e/drho_e`` ``(E, 8)``: the ``E'(rho)`` and ``g'(rho)`` terms."""
+        """``dR_int,e/drho_e`` ``(E, 8)``: the ``E'(rho)`` and ``g'(rho)`` terms (``E'(rho) K0 u``
+        on the linear elements)."""
         g, dg = self.nonlinear_weight(rho)
-        vals = self.kernel.density_vectors(np.asarray(u)[self.dofs], simp(rho), simp.derivative(rho), g, dg)
+        ue = np.asarray(u)[self.dofs]
+        dmodulus = simp.derivative(rho)
+        vals = dmodulus[:, None] * self.kernel.linear_forces(ue)
+        nl = self.nonlinear_elements(rho)
+        if nl.size:
+            vals[nl] = self._kernel_of(nl).density_vectors(ue[nl], simp(rho)[nl], dmodulus[nl], g[nl], dg[nl])
         if np.isnan(vals).any():
             raise NumericalError("structure: an element is inverted (det F <= 0 in the neo-Hookean part)",
                                  self.worst_element(self._values(u, rho, simp, False).det_min))
         return vals
 
     def energy(self, u, rho, simp: SIMP) -> float:
-        """Strain energy ``sum_e W_e(u)`` [J/m]."""
-        g, _ = self.nonlinear_weight(rho)
-        return float(self.kernel.energy(np.asarray(u)[self.dofs], simp(rho), g).sum())
+        """Strain energy ``sum_e W_e(u)`` [J/m] (NaN if an element inverts)."""
+        values = self._values(u, rho, simp, False)
+        return float("nan") if values.energy is None else float(values.energy.sum())
 
     def worst_element(self, det_min: np.ndarray) -> dict:
         """The element with the smallest ``det F`` (of the nonlinear part) and where it is."""
