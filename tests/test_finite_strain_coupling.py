@@ -110,3 +110,30 @@ def test_check_gradients_command_on_a_coarse_two_way_scene(tmp_path, monkeypatch
     assert main(args) == 1
     out = json.loads(capsys.readouterr().out)
     assert "S_rho" in {r["check"] for r in out["checks"] if not r["passed"]}
+
+
+def test_a_resumed_finite_strain_optimization_reproduces_the_history_exactly(tmp_path):
+    """Newton warm-starts from the previous design's state; the replay makes the same starts."""
+    from tofsi.optimize import Optimizer
+    from conftest import scene_path
+    overrides = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.25", "optimizer.max_iter=10",
+                 "design.stage_iterations=6", "structure.model=neo-hookean", "structure.youngs_modulus=2e3",
+                 "structure.load_exponent=3"]
+
+    def run(output, on_iteration=None, resume=False):
+        scene = tofsi.load_scene(scene_path("beam_in_channel_optimization"), overrides)
+        opt = Optimizer(tofsi.Problem(scene), output, on_iteration=on_iteration)
+        opt.run(resume=resume)
+        return opt
+
+    full = run(tmp_path / "full")
+
+    def interrupt(it):
+        if it.iteration == 7:                                 # inside the second stage
+            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path / "cut", on_iteration=interrupt)
+    resumed = run(tmp_path / "cut", resume=True)
+    key = lambda h: (h.iteration, h.stage, h.objective, h.volume, h.constraint, h.change, h.beta)
+    assert [key(h) for h in resumed.history] == [key(h) for h in full.history]   # bitwise
+    assert full.history[-1].objective < 0.5 * full.history[0].objective
