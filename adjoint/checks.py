@@ -115,16 +115,19 @@ def check_blocks(system, state, seed: int = 0, cd_tol: float = 1e-6) -> list[dic
     return rows
 
 
-def check_totals(problem, gamma, seed: int = 0, cd_tol: float = 1e-5) -> list[dict]:
-    """The objective's and the constraint's total derivatives (Taylor test, central differences)."""
+def check_totals(problem, gamma, seed: int = 0, cd_tol: float = 1e-5, eps0: float = 1e-2) -> list[dict]:
+    """The objective's and the constraint's total derivatives (Taylor test from steps ``eps0``,
+    central differences)."""
     rng = np.random.default_rng(seed)
     rows = []
-    for name, fun in (("objective " + problem.objective.name, lambda g: problem.evaluate(g)),
-                      ("constraint volume", lambda g: tuple(a[0] for a in problem.constraints(g)))):
+    quantities = [("objective " + problem.objective.name, lambda g: problem.evaluate(g))]
+    quantities += [(f"constraint {name}", lambda g, i=i: tuple(a[i] for a in problem.constraints(g)))
+                   for i, name in enumerate(problem.constraint_names())]
+    for name, fun in quantities:
         f0, grad = fun(gamma)
         d = rng.normal(size=gamma.size)
         value = lambda g, fun=fun: fun(g)[0]
-        t = taylor_test(value, gamma, grad, d, eps0=1e-2, steps=5, f0=f0)
+        t = taylor_test(value, gamma, grad, d, eps0=eps0, steps=5, f0=f0)
         cd = central_difference(value, gamma, d, 1e-5)
         rows.append(check_row(name, t.eps, t.remainders, t.rates, relative_error(cd, grad @ d),
                               abs(grad @ d), cd_tol))

@@ -40,6 +40,8 @@ SMALL = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.2", "optimi
 def main(output: Path, overrides=(), overwrite: bool = False) -> dict:
     if os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0":
         overrides = SMALL + list(overrides)
+        print("small mode (TOFSI_EXAMPLE_SMALL): " + ", ".join(SMALL) + " -- Young's modulus raised "
+              "from 5 kPa to 1 MPa, so the coarse gray designs of six iterations hold against the flow")
     scene = tofsi.load_scene(SCENE, list(overrides))
     folder = RunFolder(output, program="examples/optimize_fsi.py", overwrite=overwrite,
                        replaces_own=True).check()

@@ -4,9 +4,10 @@ suite runs each at a coarse mesh (a tenth of the channel's smaller side); the sc
 at their own meshes, run with ``-m slow``.
 
 The two-way scene's structure is soft (E = 5 kPa), so its uniform gray starting design (stage 0:
-one-way, beta 1) moves tens of metres in small-strain elasticity: ``solve`` gives the linear
-model's figures (optimize's iteration 0) with a warning on stderr, in solve.json and in run.json
-saying that this is not a physical state and what to solve instead (--design FILE).
+one-way, beta 1) moves tens of metres in small-strain elasticity: ``solve`` writes the linear
+model's figures (optimize's iteration 0) marked ``physical: false`` with a warning on stderr, in
+solve.json and in run.json saying what to solve instead (--design FILE), and exits 5 unless
+``--allow-unphysical`` accepts them.
 """
 
 import json
@@ -46,11 +47,17 @@ def test_shipped_scene_runs_through_the_command_line(name, command, size, cli, t
     mesh = coarse(scene) if size == "coarse" else []
     extra = ["--set", "optimizer.max_iter=3", "--set", "optimizer.output_every=10"] if command == "optimize" else []
     run = cli(command, str(scene_path(name)), *mesh, "--output", str(tmp_path / "out"), "--json", *extra)
-    assert run.returncode == 0, run.stderr
+    unphysical = (name, command) == ("beam_in_channel_optimization_fsi", "solve")
+    assert run.returncode == (5 if unphysical else 0), run.stderr
     figures = json.loads(run.stdout)
-    if (name, command) == ("beam_in_channel_optimization_fsi", "solve"):
+    assert figures.get("physical", True) is not unphysical
+    if unphysical:
         warning = [ln for ln in run.stderr.splitlines() if ln.startswith("warning:")]
         assert len(warning) == 1 and "exceeds the channel" in warning[0] and "--design FILE" in warning[0]
+        assert "--allow-unphysical" in warning[0]
+        accepted = cli(command, str(scene_path(name)), *mesh, "--output", str(tmp_path / "ok"), "--json",
+                       "--allow-unphysical")
+        assert accepted.returncode == 0 and json.loads(accepted.stdout)["physical"] is False
         assert figures["max_displacement"] > 2.0 and figures["warnings"] == [warning[0][len("warning: "):]]
         record = json.loads((tmp_path / "out" / "run.json").read_text())
         assert record["warnings"] == figures["warnings"]

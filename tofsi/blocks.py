@@ -56,6 +56,9 @@ class Continuation:
     load_exponent : weight ``rho^k`` of the solid phase in the fluid load
     coupling : ``"one-way"`` to solve a two-way problem one-way (a continuation
         stage); ``""``: as the problem is
+    load : the fraction of the flow's prescribed boundary velocities (the inflow) the
+        solve applies: 1 is the problem; below 1, a step of the load continuation that
+        carries a coupled solve to large motion (:mod:`tofsi.load_ramp`)
     """
 
     penalty: float = 3.0
@@ -63,6 +66,7 @@ class Continuation:
     beta: float = 0.0
     load_exponent: float = 1.0
     coupling: str = ""
+    load: float = 1.0
 
 
 class Linearization(ABC):

@@ -2,8 +2,10 @@
 
 Exit status: 0 success, 1 a failed gradient check, 2 bad input (one line
 naming the key, the value and what is allowed; nothing is written), 3
-numerical failure (a diagnostic file is written to the output folder), 130
-interrupted (Ctrl-C), 143 terminated (SIGTERM, handled like Ctrl-C).
+numerical failure (a diagnostic file is written to the output folder), 5 a
+result that is no physical state (``solve``: a small-strain displacement
+beyond the channel; written, with ``physical: false``), 130 interrupted
+(Ctrl-C), 143 terminated (SIGTERM, handled like Ctrl-C).
 
 Before any computation the output folder is checked: it must be writable,
 and a fresh run refuses a folder holding another run's files unless
@@ -91,9 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--resume", action="store_true",
                            help="continue exactly where an interrupted run in --output stopped")
         if name == "solve":
-            p.add_argument("--design", type=Path, default=None, metavar="FILE",
-                           help="a saved design (design.npy of tofsi optimize) to analyse; "
-                                "the same as --set design.initial=FILE")
+            p.add_argument("--allow-unphysical", action="store_true",
+                           help="accept a one-way small-strain state whose displacement exceeds the "
+                                "channel (exit 0 with a warning; without it: exit 5)")
             p.add_argument("--stage", default="0", metavar="N|last",
                            help="continuation stage whose projection, SIMP penalty and Brinkman q "
                                 "apply (default 0: optimize's first iteration from this design; "
@@ -101,6 +103,13 @@ def build_parser() -> argparse.ArgumentParser:
                                 "schedule's last stage)")
         if name == "check-gradients":
             p.add_argument("--seed", type=int, default=0, help="seed of the random design and directions")
+            p.add_argument("--stage", default=None, metavar="N|last",
+                           help="continuation stage to check (default: the scene's first two-way stage, "
+                                "else 0)")
+        if name in ("solve", "check-gradients"):
+            p.add_argument("--design", type=Path, default=None, metavar="FILE",
+                           help="a saved design (design.npy of tofsi optimize); the same as "
+                                "--set design.initial=FILE")
     return parser
 
 

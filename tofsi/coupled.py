@@ -30,6 +30,7 @@ from tofsi.channel import build_mesh
 from tofsi.errors import InputError
 from tofsi.fields import fluid_force
 from tofsi.linalg import LinearAlgebra
+from tofsi.load_ramp import ramped
 from tofsi.mesh import DESIGN, SOLID
 from tofsi.registry import FIELDS
 
@@ -49,6 +50,15 @@ def continuation(scene, stage: int = 0) -> Continuation:
                         beta=float(pick(d.beta, defaults.beta)),
                         load_exponent=scene.structure.load_exponent,
                         coupling=pick(d.coupling, ""))
+
+
+def two_way_stages(scene) -> list[int]:
+    """The continuation stages a scene solves two-way (its effects two-way with a mover, and the
+    stage's ``design.coupling`` entry not one-way)."""
+    e = scene.effects
+    if not (e.coupling == "two-way" and e.mesh_motion != "none" and e.structure != "none"):
+        return []
+    return [k for k in range(scene.design.n_stages) if continuation(scene, k).coupling != "one-way"]
 
 
 class CoupledModel:
@@ -113,13 +123,18 @@ class CoupledModel:
     def solve(self, rho: np.ndarray, guess: State | None = None, progress=None,
               params: Continuation | None = None) -> State:
         """The coupled state for densities ``rho`` (E,) at continuation ``params`` (default:
-        the scene's first stage); ``guess`` warm-starts the solvers."""
+        the scene's first stage); ``guess`` warm-starts the solvers. When the solve fails at the
+        full inflow, the inflow is ramped from rest (``coupled.load_ramp``, :mod:`tofsi.load_ramp`)."""
         t0 = time.perf_counter()
         if self.flow is None:
             raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow")
         params = self.params if params is None else params
+        c = self.scene.coupled
+
+        def at(p: Continuation, start: State | None) -> State:
+            return self.system_for(p).solve(rho, p, start, progress)
         with self.linear_algebra.blas():
-            state = self.system_for(params).solve(rho, params, guess, progress)
+            state = ramped(at, params, guess, c.min_load_step) if c.load_ramp else at(params, guess)
         state.reports["wall_time_s"] = time.perf_counter() - t0
         return state
 

@@ -1,17 +1,32 @@
-"""Topology optimization with NLopt (MMA or CCSAQ), continuation, checkpoints and outputs.
+"""Topology optimization with NLopt (MMA or CCSAQ), continuation, fallbacks, checkpoints and outputs.
 
 The driver reads top to bottom::
 
-    for each continuation stage (projection beta, SIMP penalty, Brinkman q):
+    for each continuation stage (projection beta, SIMP penalty, Brinkman q, coupling):
         NLopt minimizes f(gamma) / f(gamma_0) subject to g(gamma) <= 0, 0 <= gamma <= 1,
         each evaluation: one forward solve + one adjoint per quantity (cached),
-        after each evaluation: history row, checkpoint, pictures every N iterations.
+        after each evaluation: history row, checkpoint, pictures every N iterations;
+        a trial design whose solve fails: back to the last good design, MMA restarted
+        with half its move limit (a fallback), at most optimizer.max_failures in a row.
+
+A trial design of a soft two-way problem can ask for a motion the mesh cannot
+follow (the mover folds an element) or a coupled solve that does not converge
+even along the inflow ramp (:mod:`tofsi.load_ramp`). MMA proposed that design
+from its own approximation; the driver stops that NLopt run, restarts MMA from
+the last design that solved with half the initial step (``INITIAL_STEP``: its
+move limit), and goes on. Fallbacks are counted in the history
+(``fallbacks``), on the progress line and in the result; the run stops with
+exit status 3 only after ``optimizer.max_failures`` consecutive failures, or
+when a stage's first design fails (there is no good design of that stage to
+go back to), with the iteration, the stage and the cause (the mover names the
+element) in the message.
 
 Resuming is exact. NLopt's MMA keeps internal state that cannot be saved,
-so a checkpoint holds every evaluation of the current stage and the last
-coupled state; ``resume`` restarts the stage from its first design and
-replays the stored evaluations bit for bit (NLopt is deterministic given the
-same values) until it passes the interruption, then computes on. Every
+so a checkpoint (:mod:`tofsi.checkpoint`) holds every evaluation of the
+current stage -- failed trials included -- and the last coupled state;
+``resume`` restarts the stage from its first design and replays the stored
+evaluations bit for bit (NLopt is deterministic given the same values, the
+fallbacks too) until it passes the interruption, then computes on. Every
 computed evaluation creates its own solvers (so its factorizations depend on
 nothing earlier) and is warm-started from the previous evaluation's fields,
 which a resume restores exactly: the resumed history equals the
@@ -21,7 +36,6 @@ system's (``model.system.names``).
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import asdict, dataclass, field
@@ -30,12 +44,11 @@ from pathlib import Path
 import nlopt
 import numpy as np
 
-from tofsi.blocks import State
-from tofsi.coupled import continuation
 from tofsi import quality
+from tofsi.checkpoint import read_stage, write_checkpoint
+from tofsi.coupled import continuation
 from tofsi.errors import InputError, NumericalError
 from tofsi.output import atomic_write, write_csv, write_json
-from tofsi.resume import check_resume, identity, read_checkpoint
 
 log = logging.getLogger(__name__)
 ALGORITHMS = {"MMA": nlopt.LD_MMA, "CCSAQ": nlopt.LD_CCSAQ}
@@ -60,6 +73,18 @@ class Iteration:
     min_skewness: float = float("nan")        # of the moved fluid mesh (NaN: the mesh did not move)
     min_area_change: float = float("nan")
     max_area_change: float = float("nan")
+    skewness_constraint: float = float("nan")  # g of design.min_skewness (NaN: not constrained here)
+    fallbacks: int = 0                         # failed trial designs so far in the run
+    load_steps: int = 0                        # steps of the inflow ramp this evaluation took (0: none)
+    load_cutbacks: int = 0
+
+
+class TrialFailed(Exception):
+    """A trial design's coupled solve failed (the cause: ``error``, a NumericalError)."""
+
+    def __init__(self, error: NumericalError):
+        super().__init__(str(error))
+        self.error = error
 
 
 def stop_reason(result: int) -> str:
@@ -87,15 +112,18 @@ def non_discreteness(rho: np.ndarray) -> float:
 @dataclass
 class StageRun:
     """The running continuation stage: its number and start, the scale of its objective (its
-    first value), its evaluations so far (checkpointed), the evaluations a resume replays, and
-    the last evaluation (NLopt asks for the objective and the constraints at one point)."""
+    first value), its evaluations so far (checkpointed; failed trials too), the evaluations a
+    resume replays, the last good evaluation (NLopt asks for the objective and the constraints
+    at one point; a fallback returns to it) and the failures in a row."""
 
     stage: int
     start: np.ndarray
     scale: float | None = None
     log: list = field(default_factory=list)
     replay: list = field(default_factory=list)
-    last: tuple | None = None                   # (gamma, entry)
+    last: tuple | None = None                   # (gamma, entry) of the last good evaluation
+    failures_in_a_row: int = 0
+    fallbacks_at_start: int = 0                 # the run's fallbacks before the stage
 
 
 class Optimizer:
@@ -103,15 +131,18 @@ class Optimizer:
 
     on_iteration : optional callback ``(Iteration) -> None`` (progress lines, tests)
     on_picture : optional callback ``(iteration, gamma, state) -> None`` (pictures, VTU)
+    on_fallback : optional callback ``(iteration, fallbacks, move limit, error) -> None`` after a
+        failed trial design
     """
 
-    def __init__(self, problem, output: Path, on_iteration=None, on_picture=None):
+    def __init__(self, problem, output: Path, on_iteration=None, on_picture=None, on_fallback=None):
         self.problem, self.output = problem, Path(output)
         self.scene = problem.scene
         self.settings, self.design = self.scene.optimizer, self.scene.design
-        self.on_iteration, self.on_picture = on_iteration, on_picture
+        self.on_iteration, self.on_picture, self.on_fallback = on_iteration, on_picture, on_fallback
         self.history: list[Iteration] = []
         self.run_stage: StageRun | None = None
+        self.fallbacks = 0                   # failed trial designs in the run
         self.stop_reason = "max_iter"        # why the last stage ended (see stop_reason())
         self._t0 = time.perf_counter()
 
@@ -125,16 +156,17 @@ class Optimizer:
         if run.last is not None and np.array_equal(run.last[0], gamma):
             return run.last[1]
         if run.replay:
-            stored = run.replay.pop(0)
-            if not np.array_equal(stored["gamma"], gamma):
+            entry = run.replay.pop(0)
+            if not np.array_equal(entry["gamma"], gamma):
                 raise InputError("--resume", str(self.checkpoint_path),
                                  "the checkpoint does not match this scene's optimization path")
-            entry = stored
         else:
             entry = self._compute(gamma)
-        previous = run.last[0] if run.last is not None else (run.log[-1]["gamma"] if run.log else gamma)
-        run.last = (gamma.copy(), entry)
         run.log.append(entry)
+        if entry.get("failed"):
+            raise TrialFailed(NumericalError(entry["error"], entry["diagnostic"]))
+        previous = run.last[0] if run.last is not None else gamma
+        run.last, run.failures_in_a_row = (gamma.copy(), entry), 0
         self._record(gamma, entry, float(np.max(np.abs(gamma - previous))))
         return entry
 
@@ -143,26 +175,28 @@ class Optimizer:
         try:
             f, df = p.evaluate(gamma)
             g, dg = p.constraints(gamma)
-        except NumericalError as err:          # the last checkpoint holds the iterations before
-            raise NumericalError(f"design iteration {len(self.history)}: {err}",
-                                 {"iteration": len(self.history), **err.diagnostic}, state=err.state) from err
+        except NumericalError as err:
+            return {"gamma": gamma.copy(), "failed": True, "error": str(err), "diagnostic": err.diagnostic}
         state = p.solve(gamma)
+        ramp = state.reports.get("load_ramp", {})
         return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
                 "volume": p.volume_fraction.value(p.model, state), "quality": mesh_quality(p.model.mesh, state),
-                "state": state}
+                "ramp": (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))), "state": state}
 
     def _record(self, gamma, entry, change) -> None:
         run = self.run_stage
         if run.scale is None:                   # each stage scales by its first objective value
             run.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
         params = self.problem.params            # the stage's record, as the problem solved with it
+        g = entry["g"]
         it = Iteration(len(self.history), run.stage, float(entry["f"]), float(entry["f"] / run.scale),
-                       float(entry["volume"]), float(entry["g"][0]), change, params.beta,
+                       float(entry["volume"]), float(g[0]), change, params.beta,
                        params.penalty, params.brinkman_q, time.perf_counter() - self._t0,
-                       params.coupling or self.scene.effects.coupling, *entry["quality"])
+                       params.coupling or self.scene.effects.coupling, *entry["quality"],
+                       float(g[1]) if len(g) > 1 else float("nan"), self.fallbacks, *entry["ramp"])
         self.history.append(it)
         if "state" in entry:                           # computed now (not replayed): save
-            self._checkpoint(entry["state"])
+            write_checkpoint(self.checkpoint_path, self.problem, run, self.history, entry["state"])
             for earlier in run.log[:-1]:               # hold one state (and its factorizations)
                 earlier.pop("state", None)
             self._write_history()
@@ -171,54 +205,26 @@ class Optimizer:
         if self.on_iteration:
             self.on_iteration(it)
 
-    # ---- checkpoints -----------------------------------------------------------------
-    def _checkpoint(self, state: State) -> None:
-        run = self.run_stage
-        log_arrays = {}
-        for k, e in enumerate(run.log):
-            for key in ("gamma", "df", "g", "dg"):
-                log_arrays[f"e{k}_{key}"] = e[key]
-            log_arrays[f"e{k}_f"] = np.array([e["f"], e["volume"]])
-            log_arrays[f"e{k}_quality"] = np.array(e["quality"])
-        fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
-        meta = {"scene": self.scene.name, "stage": run.stage, "n_stage_evaluations": len(run.log),
-                "scale": run.scale, "history": [asdict(h) for h in self.history],
-                "stage_start": run.start.tolist(),
-                "identity": identity(self.scene, self.problem.model.mesh, self.problem.n_design)}
-
-        def write(tmp):
-            with open(tmp, "wb") as fh:
-                np.savez(fh, meta=np.array(json.dumps(meta)), rho=state.rho, **fields, **log_arrays)
-        atomic_write(self.checkpoint_path, write)
-
-    def _load_checkpoint(self):
-        meta, data = read_checkpoint(self.checkpoint_path)     # same scene and mesh, or InputError
-        check_resume(meta, data, self.problem, self.checkpoint_path)
-        replay = []
-        for k in range(meta["n_stage_evaluations"]):
-            f, volume = data[f"e{k}_f"]
-            replay.append({"gamma": data[f"e{k}_gamma"], "df": data[f"e{k}_df"], "g": data[f"e{k}_g"],
-                           "dg": data[f"e{k}_dg"], "f": float(f), "volume": float(volume),
-                           "quality": tuple(float(q) for q in data.get(f"e{k}_quality", [np.nan] * 3))})
-        state = State(rho=data["rho"], converged=True,
-                      fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})
-        return meta, replay, state
-
     # ---- the run ---------------------------------------------------------------------
     def run(self, resume: bool = False) -> dict:
         """Optimize from the initial design (or the checkpoint); returns the final figures."""
+        return self.finish(self.design_after(self.design.n_stages, resume))
+
+    def design_after(self, end: int, resume: bool = False) -> np.ndarray:
+        """The design the stages before ``end`` reach (from the initial design, or the
+        checkpoint), without the final evaluation and summary of :meth:`run`."""
         p, s, d = self.problem, self.settings, self.design
         gamma = p.initial_design()
         resumed = None
         if resume:
-            meta, replay, state = self._load_checkpoint()
-            skip = meta["history"][-1]["iteration"] + 1 - len(replay)   # the earlier stages' iterations
+            meta, replay, state = read_stage(self.checkpoint_path, p)
+            skip = meta["history"][-1]["iteration"] + 1 - sum(not e.get("failed") for e in replay)
             self.history = [Iteration(**h) for h in meta["history"][:skip]]
+            self.fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
             resumed = StageRun(meta["stage"], np.asarray(meta["stage_start"], dtype=float), meta["scale"],
-                               replay=replay)
+                               replay=replay, fallbacks_at_start=self.fallbacks)
             p.set_guess(state)
-        n_stages = d.n_stages
-        for stage in range(resumed.stage if resumed else 0, n_stages):
+        for stage in range(resumed.stage if resumed else 0, end):
             remaining = s.max_iter - len(self.history)
             if remaining <= 0:
                 break
@@ -226,10 +232,10 @@ class Optimizer:
             if resumed is not None and stage == resumed.stage:
                 self.run_stage = resumed              # the stage's start and scale, replayed
             else:                                     # each stage starts within the volume bound
-                self.run_stage = StageRun(stage, p.feasible(gamma))
-            last_stage = stage == n_stages - 1
+                self.run_stage = StageRun(stage, p.feasible(gamma), fallbacks_at_start=self.fallbacks)
+            last_stage = stage == d.n_stages - 1
             gamma = self._run_stage(remaining if last_stage else min(remaining, d.stage_iterations))
-        return self.finish(gamma)
+        return gamma
 
     def _converged(self, stage: int) -> bool:
         """Stop a stage once the design settles: after ``MIN_STAGE`` evaluations, the largest
@@ -245,12 +251,52 @@ class Optimizer:
         return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
 
     def _run_stage(self, max_evaluations: int) -> np.ndarray:
-        s, run = self.settings, self.run_stage
+        """NLopt over the stage, within ``max_evaluations`` evaluations (failed trials count);
+        after a failed trial design MMA restarts from the last good design with half its move
+        limit, until ``optimizer.max_failures`` failures in a row."""
+        run, step = self.run_stage, INITIAL_STEP
         gamma = run.start
+        while True:
+            budget = max_evaluations - len(run.log)
+            if budget <= 0:
+                self.stop_reason = "max_iter"
+                return run.last[0].copy() if run.last is not None else gamma
+            try:
+                return self._nlopt(gamma, step, budget + (run.last is not None))   # + the restart's repeat
+            except TrialFailed as failed:
+                self.fallbacks += 1
+                run.failures_in_a_row += 1
+                self._give_up_unless_fallback(failed.error)
+                gamma, step = run.last[0], 0.5 * step
+                log.info("design iteration %d: a trial design failed (%s); MMA restarts from the last "
+                         "good design with move limit %.3g (fallback %d, %d in a row)", len(self.history),
+                         failed.error, step, self.fallbacks, run.failures_in_a_row)
+                if self.on_fallback:
+                    self.on_fallback(len(self.history), self.fallbacks, step, failed.error)
+
+    def _give_up_unless_fallback(self, error: NumericalError) -> None:
+        """Raise the run's failure when no fallback is possible: the stage's first design failed,
+        or ``optimizer.max_failures`` trial designs failed in a row."""
+        run, limit = self.run_stage, self.settings.max_failures
+        params = self.problem.params
+        where = (f"design iteration {len(self.history)} (stage {run.stage}, "
+                 f"{params.coupling or self.scene.effects.coupling}, beta {params.beta:g})")
+        diagnostic = {"iteration": len(self.history), "stage": run.stage, "fallbacks": self.fallbacks,
+                      "failures_in_a_row": run.failures_in_a_row, **error.diagnostic}
+        if run.last is None:
+            raise NumericalError(f"{where}: the stage's first design failed, so there is no good design of "
+                                 f"this stage to fall back to: {error}", diagnostic, state=error.state)
+        if run.failures_in_a_row >= limit:
+            raise NumericalError(f"{where}: {run.failures_in_a_row} trial designs failed in a row "
+                                 f"(optimizer.max_failures = {limit}); the last: {error}", diagnostic,
+                                 state=error.state)
+
+    def _nlopt(self, gamma: np.ndarray, step: float, max_evaluations: int) -> np.ndarray:
+        s, run = self.settings, self.run_stage
         opt = nlopt.opt(ALGORITHMS[s.algorithm], gamma.size)
         opt.set_lower_bounds(np.zeros(gamma.size))
         opt.set_upper_bounds(np.ones(gamma.size))
-        opt.set_initial_step(np.full(gamma.size, INITIAL_STEP))
+        opt.set_initial_step(np.full(gamma.size, step))
 
         def objective(x, grad):
             e = self._evaluate(np.asarray(x))
@@ -267,7 +313,7 @@ class Optimizer:
                 grad[:] = e["dg"]
 
         opt.set_min_objective(objective)
-        opt.add_inequality_mconstraint(constraint, [1e-8])
+        opt.add_inequality_mconstraint(constraint, [1e-8] * len(self.problem.constraint_names()))
         opt.set_maxeval(max_evaluations)
         try:
             gamma = np.asarray(opt.optimize(np.clip(gamma, 0.0, 1.0)))
@@ -295,6 +341,7 @@ class Optimizer:
                    "non_discreteness_percent": non_discreteness(rho),
                    "wall_time_s": time.perf_counter() - self._t0,
                    "evaluations_computed": p.evaluations, "stop_reason": self.stop_reason,
+                   "fallbacks": self.fallbacks,
                    "stage": self.history[-1].stage if self.history else 0,     # of these figures
                    **p.model.figures(state)}
         self._write_history()

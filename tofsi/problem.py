@@ -30,6 +30,7 @@ from tofsi.design import DesignMap
 from tofsi.design_file import read_design
 from tofsi.errors import InputError
 from tofsi.kept import Kept, input_key
+from tofsi.objectives.skewness import SoftMinSkewness
 from tofsi.objectives.volume import VolumeFraction
 from tofsi.registry import OBJECTIVES
 
@@ -154,29 +155,47 @@ class Problem:
         """Objective and its gradient with respect to gamma."""
         point = self.point(gamma)
         if point.objective is None:
-            state = point.state
-            f = self.objective.value(self.model, state)
-            df_drho = self._adjoint(point).gradient(self.objective.partials(self.model, state))
-            point.objective = (f, self.map.transpose(point.gamma, state.params.beta, df_drho))
+            point.objective = (self.objective.value(self.model, point.state), self._total(point, self.objective))
         return point.objective
 
-    def constraints(self, gamma) -> tuple[np.ndarray, np.ndarray]:
-        """``g = [phase fraction / volume_fraction - 1] <= 0`` and ``dg/dgamma`` (1, n_design).
+    def constraint_names(self) -> list[str]:
+        """The constraints at the current continuation record: the volume bound, and in a stage
+        whose mesh moves the mesh-quality bound when ``design.min_skewness`` asks for it."""
+        names = ["volume"]
+        if self.scene.design.min_skewness > -1.0 and "x" in self.model.system_for(self.params).names:
+            names.append("min skewness")
+        return names
 
-        The phase is the solid (``design.constraint = "solid"``) or the fluid
-        (``"fluid"``: fraction ``1 - solid``) of the design region.
+    def constraints(self, gamma) -> tuple[np.ndarray, np.ndarray]:
+        """``g <= 0`` and ``dg/dgamma`` ``(m, n_design)`` for the :meth:`constraint_names`:
+
+        * volume: ``phase fraction / volume_fraction - 1``, the phase the solid
+          (``design.constraint = "solid"``) or the fluid (``"fluid"``: fraction ``1 - solid``)
+          of the design region;
+        * min skewness: ``min_skewness - KS_p(corner skewness of the moved mesh)``
+          (:class:`~tofsi.objectives.skewness.SoftMinSkewness`), its gradient through the
+          coupled adjoint (mover, structure, flow).
         """
         point = self.point(gamma)
         if point.constraints is None:
             state = point.state
             d = self.scene.design
             solid = self.volume_fraction.value(self.model, state)
-            dvolume = self._adjoint(point).gradient(self.volume_fraction.partials(self.model, state))
-            dsolid = self.map.transpose(point.gamma, state.params.beta, dvolume)
             sign, fraction = (1.0, solid) if d.constraint == "solid" else (-1.0, 1.0 - solid)
-            g = fraction / d.volume_fraction - 1.0
-            point.constraints = (np.array([g]), sign * dsolid[None, :] / d.volume_fraction)
+            g = [fraction / d.volume_fraction - 1.0]
+            dg = [sign * self._total(point, self.volume_fraction) / d.volume_fraction]
+            if "min skewness" in self.constraint_names():
+                quality = SoftMinSkewness(d.skewness_ks)
+                g.append(d.min_skewness - quality.value(self.model, state))
+                dg.append(-self._total(point, quality))
+            point.constraints = (np.array(g), np.vstack(dg))
         return point.constraints
+
+    def _total(self, point: "DesignPoint", quantity) -> np.ndarray:
+        """``dq/dgamma`` of a quantity (``value``, ``partials``) at a point: the adjoint, then the
+        design map's transpose."""
+        d_rho = self._adjoint(point).gradient(quantity.partials(self.model, point.state))
+        return self.map.transpose(point.gamma, point.state.params.beta, d_rho)
 
     def volume(self, gamma) -> float:
         """Solid fraction of the design region."""

@@ -139,6 +139,12 @@ class CoupledSettings:
     quasi_newton: bool = option(True, doc="monolithic: keep the shape derivatives (F_x, S_x) of the "
                                           "first iterate for the rest of the Newton solve (the "
                                           "adjoint gets the exact ones of the converged state)")
+    load_ramp: bool = option(True, doc="when a coupled solve fails at the full inflow from its warm "
+                                       "start, ramp the inflow from rest in adaptive steps (each warm-"
+                                       "started from the last, halved on failure) to carry it to large "
+                                       "motion")
+    min_load_step: float = option(1.0 / 64.0, gt=0, le=1, doc="the smallest step of the inflow ramp "
+                                  "(fraction of the inflow) before the solve fails")
     linear_solver: str = option("block", choices=("block", "direct"),
                                 doc="monolithic: the Newton's linear solver -- block: GMRES preconditioned "
                                     "by block Gauss-Seidel over the fields' own factorizations (flow, "
@@ -175,6 +181,14 @@ class DesignSettings:
                                            "scene: one-way stages first find the topology at one-way "
                                            "cost, two-way stages design against the deforming flow; "
                                            "empty: effects.coupling throughout")
+    min_skewness: float = option(-1.0, ge=-1, lt=1,
+                                 doc="two-way stages: the constraint KS_p(corner skewness of the moved "
+                                     "fluid mesh) >= min_skewness (1 square corners, 0 degenerate; -1: "
+                                     "no constraint), so the optimizer steers away from designs whose "
+                                     "mesh would fold")
+    skewness_ks: float = option(100.0, gt=0, le=1e4,
+                                doc="KS parameter p of the mesh-quality constraint's soft minimum (within "
+                                    "log(4 E)/p below the worst corner)")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
                                   "(path relative to the working directory); empty: uniform")
@@ -199,6 +213,10 @@ class OptimizerSettings:
     tol_change: float = option(1e-3, gt=0, doc="stop when max |gamma change| falls below")
     tol_objective: float = option(1e-6, gt=0, doc="stop on relative objective change below")
     output_every: int = option(10, ge=1, doc="write pictures and VTU every N iterations")
+    max_failures: int = option(5, ge=1, le=1000,
+                               doc="failed trial designs in a row (a coupled solve or mesh motion that "
+                                   "fails) before the run stops with exit status 3; after each, MMA "
+                                   "restarts from the last good design with half its move limit")
 
 
 @dataclass(frozen=True)

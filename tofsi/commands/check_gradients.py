@@ -1,37 +1,83 @@
 """``tofsi check-gradients SCENE``: adjoint versus finite differences, block by block and total.
 
-Exit status 1 when any check fails. Every Jacobian block the scene has is
-checked on the solved state of a random design (fixed seed) with a Taylor
-test (rate 2, or round-off remainders for a linear map) and central
-differences; then the objective's and the volume constraint's total
+Exit status 1 when any check fails. Every Jacobian block of the continuation
+stage ``--stage`` is checked on the solved state of a design (fixed seed)
+with a Taylor test (rate 2, or round-off remainders for a linear map) and
+central differences; then the objective's and the constraints' total
 derivatives with respect to the design variables.
+
+The stage is by default the scene's first two-way stage where it has one
+(so a two-way scene's two-way gradient is what is checked), else 0. The
+design is ``--design FILE`` (or ``design.initial``) when given; else, at a
+two-way stage after one-way stages, the design those stages reach (run as
+``tofsi optimize`` runs them: a soft structure's random gray design is no
+state the mesh can follow), slightly perturbed; else a random design in
+[0.1, 0.9].
 """
 
 from __future__ import annotations
 
+import tempfile
+
 import numpy as np
 
 from adjoint.checks import check_blocks, check_totals
+from tofsi.commands.context import stage_index
+from tofsi.coupled import continuation, two_way_stages
+from tofsi.optimize import Optimizer
 from tofsi.output import write_json
 from tofsi.problem import Problem
+
+PERTURBATION = 0.02      # of a reached design: a generic point, still one the mesh can follow
+
+
+def taylor_step(beta: float) -> float:
+    """The Taylor test's first step along a unit-normal design direction: 1e-2, smaller for a
+    sharp projection (its transition is ~1/beta wide; the remainder must be in its O(eps^2)
+    range from the first step)."""
+    return 1e-2 / max(1.0, beta / 4.0)
+
+
+def checked_stage(scene, text) -> int:
+    """``--stage``: as given, or the first two-way stage, or 0."""
+    if text is not None:
+        return stage_index(scene, text)
+    stages = two_way_stages(scene)
+    return stages[0] if stages else 0
 
 
 def run(scene, args, ctx) -> dict:
     problem = Problem(scene)
     rng = np.random.default_rng(args.seed)
-    gamma = rng.uniform(0.1, 0.9, problem.n_design)
-    ctx.say(f"{scene.name}: {problem.n_design} design variables; "
-            f"{problem.model.mesh.n_elements} elements; seed {args.seed}")
-    with ctx.step("solving the random design"):
+    stage = checked_stage(scene, getattr(args, "stage", None))
+    params = continuation(scene, stage)
+    if scene.design.initial:
+        gamma, design = problem.initial_design(), scene.design.initial
+    elif stage > 0 and stage in two_way_stages(scene):
+        with ctx.step(f"reaching stage {stage} through the scene's stages 0 to {stage - 1}"), \
+                tempfile.TemporaryDirectory() as scratch:
+            reached = Optimizer(problem, scratch).design_after(stage)
+        gamma = np.clip(reached + PERTURBATION * rng.uniform(-1, 1, reached.size), 0.0, 1.0)
+        design = f"reached by stages 0-{stage - 1}, perturbed by {PERTURBATION:g}"
+    else:
+        gamma, design = rng.uniform(0.1, 0.9, problem.n_design), "random in [0.1, 0.9]"
+    problem.set_stage(params)
+    coupling = params.coupling or scene.effects.coupling
+    ctx.say(f"{scene.name}: {problem.n_design} design variables; {problem.model.mesh.n_elements} elements; "
+            f"stage {stage} ({coupling}, beta {params.beta:g}); design {design}; seed {args.seed}")
+    with ctx.step("solving the design"):
         state = problem.solve(gamma)
     with ctx.step("checking every Jacobian block and the total derivatives"):
-        rows = check_blocks(problem.model.system_for(state.params), state, args.seed) + check_totals(problem, gamma, args.seed)
+        rows = (check_blocks(problem.model.system_for(state.params), state, args.seed)
+                + check_totals(problem, gamma, args.seed, eps0=taylor_step(params.beta)))
     ctx.say(f"{'check':28s} {'Taylor rate':>11s} {'CD rel. error':>14s}  result")
     for r in rows:
         rate = "linear" if r["linear"] else f"{r['min_rate']:.3f}"
         ctx.say(f"{r['check']:28s} {rate:>11s} {r['cd_error']:14.2e}  {'ok' if r['passed'] else 'FAILED'}")
     passed = all(r["passed"] for r in rows)
     ctx.begin()
-    write_json(ctx.path("check_gradients.json"), {"passed": passed, "checks": rows})
+    write_json(ctx.path("check_gradients.json"), {"passed": passed, "stage": stage, "coupling": coupling,
+                                                 "design": design, "checks": rows})
     ctx.exit_status = 0 if passed else 1
-    return {"scene": scene.name, "passed": passed, "checks": rows, "outputs": list(ctx.written)}
+    return {"scene": scene.name, "passed": passed, "stage": stage, "coupling": coupling, "design": design,
+            "checks": rows, "outputs": list(ctx.written)}

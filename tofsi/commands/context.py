@@ -11,6 +11,18 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from tofsi.errors import InputError
+
+
+def stage_index(scene, text) -> int:
+    """A continuation stage named on the command line: ``N`` (0 to the last) or ``last``."""
+    text = str(text)
+    n_stages = scene.design.n_stages
+    stage = n_stages - 1 if text == "last" else (int(text) if text.isdigit() else -1)
+    if not 0 <= stage < n_stages:
+        raise InputError("--stage", text, f"allowed: 0 to {n_stages - 1} or last")
+    return stage
+
 
 @dataclass
 class RunContext:

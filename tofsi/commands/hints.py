@@ -26,7 +26,8 @@ def hint(err, scene, command: str = "") -> str:
         return (f"{where}; try more steps (--set fluid.continuation_steps={2 * steps}), more Newton "
                 f"iterations (fluid.newton_max_iter = {scene.fluid.newton_max_iter}), a finer mesh, or a "
                 "smaller fluid.density or inlet velocity")
-    if (command in ("solve", "optimize") and scene.has_design and scene.effects.coupling == "two-way"
+    on_the_start = command == "solve" or (command == "optimize" and diagnostic.get("iteration") == 0)
+    if (on_the_start and scene.has_design and scene.effects.coupling == "two-way"
             and not scene.design.initial and "mover" in message):
         return ("the two-way coupled solve failed on the uniform gray design (too soft for the "
                 "flow's load); start the schedule one-way (design.coupling = [\"one-way\", ..., "

@@ -72,13 +72,25 @@ def run(scene, args, ctx) -> dict:
     pictures = Pictures(ctx, problem)
     d, s = scene.design, scene.optimizer
 
+    out = sys.stderr if ctx.json else sys.stdout
+
     def line(it):
         if not ctx.quiet:
+            notes = [f"min skewness {it.min_skewness:.3f}"] if it.min_skewness == it.min_skewness else []
+            if it.load_steps:
+                notes.append(f"inflow ramp {it.load_steps} steps, {it.load_cutbacks} cutbacks")
+            if it.fallbacks:
+                notes.append(f"{it.fallbacks} fallbacks")
             print(f"{it.iteration:5d} {it.stage:5d} {it.objective:12.5g} {it.volume:7.4f} "
-                  f"{it.constraint:9.2e} {it.change:8.4f} {it.beta:5.1f} {it.time_s:7.1f}",
-                  file=sys.stderr if ctx.json else sys.stdout, flush=True)
+                  f"{it.constraint:9.2e} {it.change:8.4f} {it.beta:5.1f} {it.time_s:7.1f}"
+                  + ("  " + "; ".join(notes) if notes else ""), file=out, flush=True)
 
-    optimizer = Optimizer(problem, ctx.output, on_iteration=line, on_picture=pictures)
+    def fallback(iteration, fallbacks, step, error):
+        if not ctx.quiet:
+            print(f"{iteration:5d} fallback {fallbacks}: a trial design failed ({str(error)[:160]}); back to "
+                  f"the last good design, move limit {step:.3g}", file=out, flush=True)
+
+    optimizer = Optimizer(problem, ctx.output, on_iteration=line, on_picture=pictures, on_fallback=fallback)
     if args.resume:                                  # same scene and mesh, before writing
         check_checkpoint(optimizer.checkpoint_path, problem)
     ctx.say(f"{scene.name}: {problem.n_design} design variables, {problem.model.mesh.n_elements} "
@@ -94,6 +106,7 @@ def run(scene, args, ctx) -> dict:
     ctx.say(f"final {d.objective} {figures['objective']:.6g}, volume {figures['volume']:.4f} "
             f"(constraint {figures['constraint']:.2e}), non-discreteness "
             f"{figures['non_discreteness_percent']:.1f} %, {figures['iterations']} iterations, "
-            f"{figures['wall_time_s']:.0f} s; stopped: {figures['stop_reason']}")
+            f"{figures['wall_time_s']:.0f} s; stopped: {figures['stop_reason']}"
+            + (f"; {figures['fallbacks']} fallbacks from failed trial designs" if figures["fallbacks"] else ""))
     figures["outputs"] = sorted(str(p) for p in ctx.output.iterdir() if not p.name.startswith("."))
     return figures

@@ -7,12 +7,20 @@ parameters of continuation stage ``--stage`` (default 0), so ``solve`` of a
 design reproduces ``optimize``'s first iteration from it, and ``--stage N``
 with the ``stage`` of a run's ``result.json`` that run's final figures
 (``last``: the schedule's last stage, where a completed run ends).
+
+A one-way state whose small-strain displacement exceeds the channel (a gray
+design far too soft for the flow: optimize's iteration 0 of a soft scene) is no
+physical state: its figures and pictures are written with ``physical: false``
+and a warning, and the exit status is 5, unless ``--allow-unphysical`` accepts
+them (exit 0, the warning kept). Where the mesh moves with the structure
+(two-way) such a displacement is a numerical failure (exit 3).
 """
 
 from __future__ import annotations
 
 
 from tofsi import quality
+from tofsi.commands.context import stage_index
 from tofsi.coupled import CoupledModel, continuation
 from tofsi.errors import InputError
 from tofsi.fields import Picture, state_points
@@ -20,6 +28,9 @@ from tofsi.output import write_json, write_vtu
 from tofsi.plotting import plot_mesh, plot_nodal
 from tofsi.problem import Problem
 from tofsi.provenance import solve_settings
+
+
+UNPHYSICAL = 5      # exit status: the figures are written, but they are no physical state
 
 
 def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None:
@@ -64,10 +75,7 @@ def design_densities(scene, args):
         model = CoupledModel(scene)
         return model, model.densities(), {}, None
     d = scene.design
-    n_stages = d.n_stages
-    stage = n_stages - 1 if stage_arg == "last" else (int(stage_arg) if stage_arg.isdigit() else -1)
-    if not 0 <= stage < n_stages:
-        raise InputError("--stage", stage_arg, f"allowed: 0 to {n_stages - 1} or last")
+    stage = stage_index(scene, stage_arg)
     problem = Problem(scene)                         # reads and checks design.initial
     params = continuation(scene, stage)
     problem.set_stage(params)
@@ -87,19 +95,24 @@ def run(scene, args, ctx) -> dict:
                 f"and the projection of stage {about['stage']} (beta {about['beta']:g})")
     with ctx.step(f"solving {fields} on {model.mesh.n_elements} quads"):
         state = model.solve(rho, params=None if problem is None else problem.params)
-    warnings = []
+    warnings, physical = [], True
     if model.structure is not None and state.x is not None:      # the mesh moved with it
         model.structure.check_displacement(state.u)
-    elif model.structure is not None:                # one-way: the linear model's answer, flagged
+    elif model.structure is not None:                # one-way: the answer, flagged
         beyond = model.structure.displacement_beyond_channel(state.u)
         if beyond:
+            physical = False
             strain = "finite-strain" if model.structure.nonlinear else "small-strain"
             warnings.append(beyond + f": the {strain} answer for a design far too soft for the "
                             "flow, not a physical state (optimize starts from it); for a designed "
-                            "structure: --design FILE (the design.npy of tofsi optimize) with --stage last")
+                            "structure: --design FILE (the design.npy of tofsi optimize) with --stage last"
+                            + ("" if args.allow_unphysical else
+                               f"; exit status {UNPHYSICAL} (--allow-unphysical accepts these figures)"))
     for text in warnings:
         ctx.warn(text)
-    figures = {"scene": scene.name, "converged": state.converged, **model.figures(state),
+    if not physical and not args.allow_unphysical:
+        ctx.exit_status = UNPHYSICAL
+    figures = {"scene": scene.name, "converged": state.converged, "physical": physical, **model.figures(state),
                "wall_time_s": state.reports["wall_time_s"], **about, "warnings": warnings}
     if problem is not None:
         figures["objective"] = problem.objective.value(model, state)

@@ -68,7 +68,7 @@ class FlowLinearization(_EliminatedLinearization):
         J, R, _ = self.flow.jacobian(self.value, self.X, self.rho, params=self.params)
         self._J = J
         if self._residual is None:
-            self._residual = self.block.constrain(R, self.value)
+            self._residual = self.block.constrain(R, self.value, self.params)
 
     def matrix(self):
         if self._J is None:
@@ -135,18 +135,19 @@ class FlowField(FieldBlock):
     def fixed(self):
         return self.flow.bc.fixed
 
-    def constrain(self, R, w):
-        """The constrained residual: free rows ``F``, fixed rows ``w - g``."""
+    def constrain(self, R, w, params):
+        """The constrained residual: free rows ``F``, fixed rows ``w - g`` (``g`` at the load of
+        ``params``)."""
         r = self.flow.bc.homogenize(R)
-        r[self.fixed] = (w - self.flow.values)[self.fixed]
+        r[self.fixed] = (w - self.flow.boundary_values(params))[self.fixed]
         return r
 
     def initial(self, fields, rho, params):
-        return self.flow.initial()
+        return self.flow.initial(params)
 
     def residual(self, fields, rho, params):
         w = fields["w"]
-        return self.constrain(self.flow.residual(w, _moved(fields, self.inputs), rho, params=params), w)
+        return self.constrain(self.flow.residual(w, _moved(fields, self.inputs), rho, params=params), w, params)
 
     def linearize(self, fields, rho, params):
         return FlowLinearization(self, fields, rho, params)

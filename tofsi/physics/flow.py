@@ -128,9 +128,15 @@ class Flow:
         """Brinkman friction per element [kg/(m^3 s)]; ``rho = None`` means all fluid."""
         return self.brinkman(params)(np.zeros(self.mesh.n_elements) if rho is None else rho)
 
-    def initial(self) -> np.ndarray:
-        """The state with the boundary values and zero elsewhere."""
-        return self.values.copy()
+    def boundary_values(self, params: Continuation | None = None) -> np.ndarray:
+        """The prescribed values (zero on free dofs) at the load of ``params`` (the inflow ramp
+        of a load continuation; 1: the scene's)."""
+        load = 1.0 if params is None else params.load
+        return self.values if load == 1.0 else load * self.values
+
+    def initial(self, params: Continuation | None = None) -> np.ndarray:
+        """The state with the boundary values (at the load of ``params``) and zero elsewhere."""
+        return self.boundary_values(params).copy()
 
     # ---- residual, Jacobian, partials ---------------------------------------------
     def element_residual(self, w, x, rho, jacobian=True, density=None, Xe=None, params=None):
@@ -259,14 +265,14 @@ class Flow:
         t0 = time.perf_counter()
         report = FlowReport()
         solver = RecyclingSolver(self.factorize) if solver is None else solver
-        w = self.initial() if w0 is None else np.where(self.bc.is_fixed, self.values, w0)
+        w = self.initial(params) if w0 is None else np.where(self.bc.is_fixed, self.boundary_values(params), w0)
         try:
             w, J = self._newton(w, x, rho, self.density, report, params, solver)
         except NumericalError as first:
             if self.density == 0.0:
                 raise
             log.info("Newton failed at full Reynolds number (%s); continuing from Stokes flow", first)
-            w, J = self._newton(self.initial(), x, rho, 0.0, report, params, solver)
+            w, J = self._newton(self.initial(params), x, rho, 0.0, report, params, solver)
             steps = self.settings.continuation_steps
             for k in range(1, steps + 1):
                 density = self.density * k / steps

@@ -1,0 +1,170 @@
+"""Two-way coupling where the motion is large: the inflow ramp, the optimizer's fallback from a
+failing trial design, the mesh-quality constraint, and check-gradients at the two-way stage.
+
+Truths: the ramped state satisfies the full problem's residuals (every block, to the coupling
+tolerance) and is the state a direct Newton solve started from it stays at; the fallback is seen
+in the history and the run goes on to its budget, and a resume across it is bitwise; the quality
+constraint's gradient passes the Taylor test and central differences.
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+import tofsi
+from adjoint.checks import check_totals
+from tofsi.coupled import CoupledModel, continuation
+from tofsi.errors import NumericalError
+from tofsi.optimize import Optimizer
+
+from conftest import load, scene_path
+
+WALL = ["geometry.design=[]", "design.coupling=[]", "structure.youngs_modulus=3e4", "mesh.h_min=0.1",
+        "mesh.h_max=0.1"]           # the headline's wall alone, ten times stiffer: it bends ~0.6 m
+
+
+def test_the_inflow_ramp_carries_a_solve_the_full_load_cannot_reach():
+    model = CoupledModel(load("beam_in_channel_optimization_fsi", *WALL))
+    with pytest.raises(NumericalError):                       # teeth: without the ramp it fails
+        CoupledModel(load("beam_in_channel_optimization_fsi", *WALL, "coupled.load_ramp=false")).solve(
+            model.densities())
+    state = model.solve(model.densities())
+    ramp = state.reports["load_ramp"]
+    assert ramp["steps"][-1] == 1.0 and len(ramp["steps"]) >= 3 and ramp["cutbacks"] >= 1
+    assert state.params == model.params and state.params.load == 1.0
+    assert np.abs(state.u).max() > 0.4                        # large motion: 40 % of the channel
+    system, tol = model.system, model.scene.coupled.tol
+    for block in system.blocks:                                # the full problem's residuals
+        lin = block.linearize(state.fields, state.rho, state.params)
+        scale = block.residual_scale(state.fields, state.rho, state.params, lin)
+        assert np.linalg.norm(block.residual(state.fields, state.rho, state.params)) <= 10 * tol * scale
+    again = CoupledModel(load("beam_in_channel_optimization_fsi", *WALL)).solve(model.densities(), guess=state)
+    assert "load_ramp" not in again.reports                    # from the ramp's state: directly
+    for f in ("u", "x", "w"):
+        ref = getattr(state, f)
+        assert np.abs(getattr(again, f) - ref).max() <= 1e-7 * np.abs(ref).max()
+
+
+TINY = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.25", "optimizer.max_iter=12",
+        "design.stage_iterations=6"]
+
+
+def failing_optimizer(output, fail_at: set, on_iteration=None, overrides=()):
+    """An optimizer whose coupled solve fails for the first trial design computed while the
+    history holds ``n`` rows, for each ``n`` in ``fail_at`` (deterministic, resumable)."""
+    problem = tofsi.Problem(load("beam_in_channel_optimization", *TINY, *overrides))
+    opt = Optimizer(problem, output, on_iteration=on_iteration)
+    solve, failed = problem.model.solve, set()
+
+    def flaky(*args, **kwargs):
+        n = len(opt.history)
+        if n in fail_at and n not in failed:
+            failed.add(n)
+            raise NumericalError("yeoh mover: forced failure of a trial design; worst element 7", {"forced": n})
+        return solve(*args, **kwargs)
+    problem.model.solve = flaky
+    return opt
+
+
+def test_a_failing_trial_design_falls_back_and_the_run_goes_on(tmp_path):
+    opt = failing_optimizer(tmp_path / "a", {3, 9})
+    result = opt.run()
+    assert result["iterations"] == 12 and result["fallbacks"] == 2
+    assert [h.fallbacks for h in opt.history] == [0] * 3 + [1] * 6 + [2] * 3
+    history = json.loads((tmp_path / "a" / "history.json").read_text())
+    assert history[-1]["fallbacks"] == 2
+    # the trial after a fallback restarts MMA from the last good design with half the move limit:
+    # its change is at most the halved initial step (MMA's first move is bounded by it)
+    after = opt.history[3]
+    assert after.change <= 0.5 * 0.05 + 1e-12 and after.objective > 0
+
+
+def test_a_resume_across_a_fallback_is_bitwise(tmp_path):
+    full = failing_optimizer(tmp_path / "full", {3})
+    full.run()
+
+    def interrupt(it):
+        if it.iteration == 5:
+            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        failing_optimizer(tmp_path / "cut", {3}, on_iteration=interrupt).run()
+    resumed = failing_optimizer(tmp_path / "cut", set())      # the failure is replayed, not recomputed
+    resumed.run(resume=True)
+    key = lambda h: (h.iteration, h.stage, h.objective, h.volume, h.constraint, h.change, h.fallbacks)
+    assert [key(h) for h in resumed.history] == [key(h) for h in full.history]
+
+
+def test_too_many_failures_in_a_row_stop_the_run_with_the_cause(tmp_path):
+    opt = failing_optimizer(tmp_path / "b", {3}, overrides=["optimizer.max_failures=1"])
+    with pytest.raises(NumericalError) as err:
+        opt.run()
+    message = str(err.value)
+    assert "design iteration 3 (stage 0" in message and "1 trial designs failed in a row" in message
+    assert "optimizer.max_failures = 1" in message and "worst element 7" in message
+    assert err.value.diagnostic["fallbacks"] == 1 and err.value.diagnostic["iteration"] == 3
+
+
+def test_a_failing_first_design_of_a_stage_stops_the_run_saying_there_is_nothing_to_fall_back_to(tmp_path):
+    opt = failing_optimizer(tmp_path / "c", {0})
+    with pytest.raises(NumericalError, match="the stage's first design failed"):
+        opt.run()
+
+
+QUALITY = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.min_skewness=0.5"]
+
+
+def reached_design(scene, stage, output):
+    problem = tofsi.Problem(scene)
+    return problem, Optimizer(problem, output).design_after(stage)
+
+
+def test_the_mesh_quality_constraint_and_its_gradient(tmp_path):
+    scene = load("beam_in_channel_optimization_fsi", *QUALITY)
+    problem, gamma = reached_design(scene, 4, tmp_path)
+    assert problem.constraint_names() == ["volume"]                 # a one-way stage: no moved mesh
+    problem.set_stage(continuation(scene, 4))
+    assert problem.constraint_names() == ["volume", "min skewness"]
+    g, dg = problem.constraints(gamma)
+    state = problem.solve(gamma)
+    true_min = problem.model.figures(state)["min_skewness"]
+    soft = 0.5 - g[1]                                               # KS_p, a lower bound of the minimum
+    assert true_min - np.log(4 * problem.model.mesh.n_elements) / 100 <= soft <= true_min + 1e-12
+    rows = check_totals(problem, gamma, seed=3, eps0=2.5e-3)
+    row = next(r for r in rows if r["check"] == "constraint min skewness")
+    assert row["passed"] and row["min_rate"] > 1.9 and np.abs(dg[1]).max() > 0, row
+
+
+def test_the_quality_constraint_is_met_by_the_optimized_design(tmp_path, cli):
+    """The headline scene, coarse: unconstrained, its two-way stage ends with a worst skewness
+    near 0.64; with ``design.min_skewness = 0.8`` the constraint is active and met at the end
+    (the soft minimum at the bound, the true minimum above it)."""
+    base = ["--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1", "--set", "optimizer.max_iter=50",
+            "--set", "design.stage_iterations=8", "--json"]
+    scene = scene_path("beam_in_channel_optimization_fsi")
+    free = cli("optimize", scene, *base, "--output", tmp_path / "f")
+    assert free.returncode == 0, free.stderr
+    assert json.loads(free.stdout)["min_skewness"] < 0.75
+    run = cli("optimize", scene, *base, "--output", tmp_path / "q", "--set", "design.min_skewness=0.8")
+    assert run.returncode == 0, run.stderr
+    history = json.loads((tmp_path / "q" / "history.json").read_text())
+    two_way = [h for h in history if h["coupling"] == "two-way"]
+    assert all(h["skewness_constraint"] is None for h in history if h["coupling"] == "one-way")   # NaN: null
+    assert -0.02 <= two_way[-1]["skewness_constraint"] <= 1e-3          # active, and met
+    assert two_way[-1]["min_skewness"] >= 0.8
+
+
+def test_check_gradients_checks_the_first_two_way_stage_by_default(cli, tmp_path):
+    scene = scene_path("beam_in_channel_optimization_fsi")
+    run = cli("check-gradients", scene, "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1",
+              "--output", tmp_path / "d", "--json")
+    assert run.returncode == 0, run.stderr
+    figures = json.loads(run.stdout)
+    assert figures["stage"] == 4 and figures["coupling"] == "two-way" and "reached" in figures["design"]
+    assert {"F_x", "S_x", "D_x", "D_u"} <= {r["check"] for r in figures["checks"]}
+    run = cli("check-gradients", scene, "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1", "--stage", "0",
+              "--output", tmp_path / "z", "--json")
+    assert run.returncode == 0, run.stderr
+    figures = json.loads(run.stdout)
+    assert figures["stage"] == 0 and figures["coupling"] == "one-way"
+    assert not {"F_x", "D_x"} & {r["check"] for r in figures["checks"]}
