@@ -203,8 +203,11 @@ class FiniteStrainElasticity:
               solver: RecyclingSolver | None = None) -> FiniteStrainSolution:
         """``u`` with ``R_int(u) = f`` on the free dofs and the clamped dofs at zero.
 
-        guess : a displacement of a nearby problem to start the full-load Newton solve from
-            (load steps from zero when absent or when that fails);
+        guess : a displacement of a nearby problem (the previous coupling sweep's, design's or
+            load step's); Newton goes from it straight to ``f``, and when that fails the load
+            is stepped from the guess's own, ``f_g = R_int(guess)``, to ``f``
+            (``f_g + t (f - f_g)``, ``t`` from 0 to 1). Without a guess (or one that inverts
+            an element) the load is stepped from zero.
         solver : a :class:`~tofsi.linalg.RecyclingSolver` whose factorization may
             precondition this solve's tangents (a new one by default).
         The result does not depend on either (to ``newton_tol``).
@@ -214,32 +217,36 @@ class FiniteStrainElasticity:
         solver = RecyclingSolver(self.factorize) if solver is None else solver
         factorizations = solver.factorizations
         f = self.bc.homogenize(f)
-        u = None
+        start, state = np.zeros(self.size), self._unloaded(rho, simp)
         if guess is not None and np.all(np.isfinite(guess)) and np.any(guess):
-            start = self.bc.homogenize(np.asarray(guess, dtype=float))
-            try:
-                u, state = self._newton(start, None, 1.0, f, rho, simp, solver, report)
+            u0 = self.bc.homogenize(np.asarray(guess, dtype=float))
+            values = self._values(u0, rho, simp, True)
+            if values.forces is not None:
+                start, state = u0, values
                 report.warm_start = True
-            except StepFailed as failed:
-                log.info("structure: the warm start failed (%s); load steps from zero", failed)
-        if u is None:
-            u, state = self._load_steps(f, rho, simp, solver, report)
+        f0 = self.bc.homogenize(assemble_vector(self.dofs, state.forces, self.size))
+        try:
+            u, state = self._newton(start, state, f, 1.0, rho, simp, solver, report)
+        except StepFailed as failed:
+            log.info("structure: Newton to the full load failed (%s); load steps from %s", failed,
+                     "the guess" if report.warm_start else "zero")
+            u, state = self._load_steps(f, f0, start, state, rho, simp, solver, report)
         report.min_det_F = float(state.det_min.min())
         report.converged = True
         report.factorizations = solver.factorizations - factorizations
         report.wall_time_s = time.perf_counter() - t0
         return FiniteStrainSolution(u, report, solver)
 
-    def _load_steps(self, f, rho, simp, solver, report: FiniteStrainReport) -> np.ndarray:
-        """``t f`` from ``t = 0`` to 1: a step that fails is halved, one that converged in a few
-        iterations is followed by a longer one."""
+    def _load_steps(self, f, f0, u, state, rho, simp, solver, report: FiniteStrainReport):
+        """The load ``f0 + t (f - f0)`` from ``t = 0`` (where ``u`` is in equilibrium) to 1: a step
+        that fails is halved, one that converged in a few iterations is followed by a longer one."""
         s = self.settings
-        u, state = np.zeros(self.size), self._unloaded(rho, simp)
-        load, step = 0.0, 1.0
+        load, step = 0.0, 0.5
         while load < 1.0 - 1e-14:
             step = min(step, 1.0 - load)
             try:
-                u_new, state_new = self._newton(u, state, load + step, f, rho, simp, solver, report)
+                t = load + step
+                u_new, state_new = self._newton(u, state, f0 + t * (f - f0), t, rho, simp, solver, report)
             except StepFailed as failed:
                 report.cutbacks += 1
                 step *= 0.5
@@ -261,25 +268,22 @@ class FiniteStrainElasticity:
 
     def _fail(self, failed: StepFailed, load: float, report: FiniteStrainReport, rho, simp):
         worst = self.worst_element(self._values(failed.u, rho, simp, False).det_min)
+        origin = "the guess's load" if report.warm_start else "zero"
         raise NumericalError(
-            f"structure (neo-Hookean): no convergence at load factor {load:.4g} after {report.cutbacks} "
-            f"cutbacks ({failed}); smallest det F {worst['min_det_F']:.3g} in element {worst['worst_element']} "
-            f"at ({worst['centroid'][0]:.3g}, {worst['centroid'][1]:.3g}) m",
-            {**worst, "load_factor": load, "cutbacks": report.cutbacks, "reason": str(failed),
-             "newton_iterations": report.newton_iterations,
+            f"structure (neo-Hookean): no convergence at load factor {load:.4g} (from {origin}) after "
+            f"{report.cutbacks} cutbacks ({failed}); smallest det F {worst['min_det_F']:.3g} in element "
+            f"{worst['worst_element']} at ({worst['centroid'][0]:.3g}, {worst['centroid'][1]:.3g}) m",
+            {**worst, "load_factor": load, "from_guess": report.warm_start, "cutbacks": report.cutbacks,
+             "reason": str(failed), "newton_iterations": report.newton_iterations,
              "residual_history": report.residual_history[-3:]}, state=failed.u)
 
-    def _newton(self, u, state, load: float, f, rho, simp, solver, report: FiniteStrainReport):
-        """Newton at load ``load f`` from ``u`` (``state``: its element values, if known); returns
-        ``(u, state)`` or raises :class:`StepFailed` with the last iterate."""
+    def _newton(self, u, state, target_f, load: float, rho, simp, solver, report: FiniteStrainReport):
+        """Newton to the load ``target_f`` (the step's ``load`` factor, for the log) from ``u`` and its
+        element values ``state``; returns ``(u, state)`` or raises :class:`StepFailed` with the
+        last iterate."""
         s = self.settings
-        target_f = load * f
         history: list[float] = []
         report.residual_history.append(history)
-        if state is None:
-            state = self._values(u, rho, simp, True)
-            if state.forces is None:
-                raise StepFailed("the start inverts an element", u)
         scale = float(np.linalg.norm(target_f))
         for it in range(s.max_newton + 1):
             forces = assemble_vector(self.dofs, state.forces, self.size)
@@ -294,16 +298,13 @@ class FiniteStrainElasticity:
                 return u, state
             if it == s.max_newton:
                 raise StepFailed(f"{s.max_newton} Newton iterations", u)
-            du = solver.solve(self.bc.matrix(state.tangents), -r, rtol=min(FORCING_CAP, forcing_term(history, target)))
+            du = solver.solve(self.bc.matrix(state.tangents), -r,
+                              rtol=min(FORCING_CAP, forcing_term(history, target)))
             du[self.bc.fixed] = 0.0
             report.newton_iterations += 1
             energy = float(state.energy.sum() - target_f @ u)
             u, state = self._line_search(u, du, energy, float(du @ r), norm, target_f, rho, simp)
         raise StepFailed("unreachable", u)
-
-    def _values(self, u, rho, simp, tangent: bool):
-        g, _ = self.nonlinear_weight(rho)
-        return self.kernel.evaluate(np.asarray(u)[self.dofs], simp(rho), g, tangent)
 
     def _line_search(self, u, du, energy0: float, slope0: float, norm0: float, target_f, rho, simp):
         """Step length along ``du`` on the potential ``Pi = sum_e W_e - f . u`` (the residual is its
