@@ -87,14 +87,14 @@ def table(rows) -> str:
              "largest displacement [m] | min det(I + grad u), void | min det, solid | time [s] |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        case = f"| {r['E0']:.4g} | {r['e_min_ratio']:.0e} | {r['interpolation']} |"
         if r["converged"]:
-            lines.append(f"| {r['E0']:.4g} | {r['e_min_ratio']:.0e} | {r['interpolation']} | yes | {r['newton_iterations']} | "
-                         f"{r['load_steps']} / {r['cutbacks']} | {r['max_displacement']:.3f} | "
-                         f"{r['min_det_void']:.3f} | {r['min_det_solid']:.3f} | {r['time_s']:.2f} |")
-        else:
-            lines.append(f"| {r['E0']:.4g} | {r['e_min_ratio']:.0e} | {r['interpolation']} | no: load factor {r['load_factor']:.3f} "
-                         f"({r['worst']}) | {r['newton_iterations']} | - / {r['cutbacks']} | - | - | - | "
+            lines.append(f"{case} yes | {r['newton_iterations']} | {r['load_steps']} / {r['cutbacks']} | "
+                         f"{r['max_displacement']:.3f} | {r['min_det_void']:.3f} | {r['min_det_solid']:.3f} | "
                          f"{r['time_s']:.2f} |")
+        else:
+            lines.append(f"{case} no: load factor {r['load_factor']:.3f} ({r['worst']}) | "
+                         f"{r['newton_iterations']} | - / {r['cutbacks']} | - | - | - | {r['time_s']:.2f} |")
     return "\n".join(lines) + "\n"
 
 

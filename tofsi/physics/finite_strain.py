@@ -14,17 +14,19 @@ the fluid mesh ``x``, a separate field in two-way coupling: the follower
 load's dependence on the motion is the coupling block ``S_x``).
 
 :meth:`FiniteStrainElasticity.solve`: Newton-Raphson with inexact
-(Eisenstat-Walker) linear solves by a
+(Eisenstat-Walker, at most ``FORCING_CAP``) linear solves by a
 :class:`~tofsi.linalg.RecyclingSolver` (the first factorization
-preconditions GMRES on the later tangents), a backtracking line search on
-``|S_free|`` that rejects steps inverting an element (``det F <= 0`` in the
-nonlinear part), and load steps ``t f``: from a warm start (``guess``, e.g.
-the previous design's or coupling sweep's displacement) one Newton solve at
-the full load; without one, or when it fails, steps from zero, halved on
-failure (cutback) and lengthened after easy ones. The first Newton step from
-zero is the linear solution (the tangent at ``u = 0`` is the small-strain
-stiffness). Failure raises :class:`~tofsi.errors.NumericalError` with the
-worst element (smallest ``det F``, its centroid).
+preconditions GMRES on the later tangents) and a backtracking line search on
+the potential ``Pi = sum_e W_e(u) - f . u`` (the residual is its gradient)
+that rejects steps inverting an element (``det F <= 0`` in the nonlinear
+part). From its start -- zero, or a ``guess`` (the previous design's,
+coupling sweep's or inflow step's displacement) -- Newton goes to the full
+load; when that fails the load is stepped from the start's own load (zero,
+or ``R_int(guess)``) to ``f``, a failed step halved (cutback), an easy one
+followed by a longer one. The first Newton step from zero is the linear
+solution (the tangent at ``u = 0`` is the small-strain stiffness). Failure
+raises :class:`~tofsi.errors.NumericalError` with the worst element
+(smallest ``det F``, its centroid).
 """
 
 from __future__ import annotations
