@@ -123,8 +123,9 @@ class CoupledModel:
     def solve(self, rho: np.ndarray, guess: State | None = None, progress=None,
               params: Continuation | None = None) -> State:
         """The coupled state for densities ``rho`` (E,) at continuation ``params`` (default:
-        the scene's first stage); ``guess`` warm-starts the solvers. When the solve fails at the
-        full inflow, the inflow is ramped from rest (``coupled.load_ramp``, :mod:`tofsi.load_ramp`)."""
+        the scene's first stage); ``guess`` warm-starts the solvers. When a two-way solve fails at
+        the full inflow, the inflow is ramped from rest (``coupled.load_ramp``, :mod:`tofsi.load_ramp`;
+        one-way, the flow continues in its Reynolds number itself)."""
         t0 = time.perf_counter()
         if self.flow is None:
             raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow")
@@ -133,8 +134,9 @@ class CoupledModel:
 
         def at(p: Continuation, start: State | None) -> State:
             return self.system_for(p).solve(rho, p, start, progress)
+        coupled = bool(self.system_for(params).cycles)    # one-way: the flow's Reynolds continuation
         with self.linear_algebra.blas():
-            state = ramped(at, params, guess, c.min_load_step) if c.load_ramp else at(params, guess)
+            state = ramped(at, params, guess, c.min_load_step) if c.load_ramp and coupled else at(params, guess)
         state.reports["wall_time_s"] = time.perf_counter() - t0
         return state
 

@@ -139,7 +139,7 @@ class CoupledSettings:
     quasi_newton: bool = option(True, doc="monolithic: keep the shape derivatives (F_x, S_x) of the "
                                           "first iterate for the rest of the Newton solve (the "
                                           "adjoint gets the exact ones of the converged state)")
-    load_ramp: bool = option(True, doc="when a coupled solve fails at the full inflow from its warm "
+    load_ramp: bool = option(True, doc="when a two-way coupled solve fails at the full inflow from its warm "
                                        "start, ramp the inflow from rest in adaptive steps (each warm-"
                                        "started from the last, halved on failure) to carry it to large "
                                        "motion")
