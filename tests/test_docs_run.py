@@ -18,7 +18,7 @@ SMALL = {"foil_in_channel": ["mesh.h_min=0.05", "mesh.h_max=0.1"],
          "beam_in_channel_optimization": ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.15",
                                           "optimizer.max_iter=4", "design.stage_iterations=2"]}
 EXAMPLE_ARGS = {"optimize_beam_in_channel.py": [], "optimize_fsi.py": [], "compare_movers.py": [],
-                "compare_mesh_motion.py": [],
+                "compare_mesh_motion.py": [], "compare_void_interpolation.py": [],
                 "move_foil.py": ["rotation"], "mesh_motion_study.py": ["all", "--jobs", "2"],
                 "tuning_band_study.py": ["all", "--jobs", "1"]}
 

@@ -95,7 +95,7 @@ class FluidSettings:
 
 @dataclass(frozen=True)
 class StructureSettings:
-    """Plane-strain linear elasticity with SIMP interpolation (table ``[structure]``)."""
+    """Plane-strain elasticity with SIMP interpolation, small or finite strain (table ``[structure]``)."""
 
     youngs_modulus: float = option(1e5, gt=0, doc="Young's modulus of solid E0 [Pa]")
     poisson_ratio: float = option(0.3, gt=-1.0, lt=0.5, doc="Poisson's ratio")
@@ -112,6 +112,23 @@ class StructureSettings:
                                   doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
                                       "et al.; the SIMP exponent keeps gray elements' displacement "
                                       "bounded)")
+    model: str = option("linear", choices=("linear", "neo-hookean"),
+                        doc="linear: small-strain elasticity; neo-hookean: compressible neo-Hookean at "
+                            "finite strain (plane strain, total Lagrangian), solved by Newton with load "
+                            "steps; the fluid load acts on the moved configuration")
+    interpolation: str = option("energy", choices=("energy", "simp"),
+                                doc="neo-hookean: nearly void elements -- energy: Wang et al. 2014's "
+                                    "blend of the nonlinear and the linear strain energy by density "
+                                    "(void elements linear, so they cannot invert or stall Newton); "
+                                    "simp: every element neo-Hookean")
+    energy_threshold: float = option(0.01, gt=0, lt=1,
+                                     doc="neo-hookean, energy: density rho0 where the blend g(rho) turns "
+                                         "from linear (below) to nonlinear (above)")
+    energy_sharpness: float = option(500.0, gt=0, le=1e4, doc="neo-hookean, energy: steepness beta of g(rho)")
+    newton_tol: float = option(1e-10, gt=0, lt=1, doc="neo-hookean: Newton tolerance, the norm of S on "
+                                                      "the free dofs relative to the load's")
+    max_newton: int = option(25, ge=1, le=1000, doc="neo-hookean: Newton iterations per load step")
+    max_cutbacks: int = option(20, ge=0, le=1000, doc="neo-hookean: halvings of the load step before failing")
 
     def __post_init__(self):
         if not self.clamped:

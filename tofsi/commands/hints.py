@@ -33,7 +33,7 @@ def hint(err, scene, command: str = "") -> str:
                 "flow's load); start the schedule one-way (design.coupling = [\"one-way\", ..., "
                 "\"two-way\"]) or from a saved design: --set design.initial=FILE")
     if command == "solve" and scene.has_design and message.startswith("structure: displacement"):
-        return ("the structure is held, but this design is far too soft for small-strain elasticity "
+        return ("the structure is held, but this design is far too soft for the flow's load "
                 "(a gray starting design of a soft scene); solve a designed structure: "
                 "--design FILE (the design.npy of tofsi optimize), with --stage last")
     return ""

@@ -99,11 +99,12 @@ def run(scene, args, ctx) -> dict:
     warnings, physical = [], True
     if model.structure is not None and state.x is not None:      # the mesh moved with it
         model.structure.check_displacement(state.u)
-    elif model.structure is not None:                # one-way: the linear model's answer, flagged
+    elif model.structure is not None:                # one-way: the answer, flagged
         beyond = model.structure.displacement_beyond_channel(state.u)
         if beyond:
             physical = False
-            warnings.append(beyond + ": the small-strain answer for a design far too soft for the "
+            strain = "finite-strain" if model.structure.nonlinear else "small-strain"
+            warnings.append(beyond + f": the {strain} answer for a design far too soft for the "
                             "flow, not a physical state (optimize starts from it); for a designed "
                             "structure: --design FILE (the design.npy of tofsi optimize) with --stage last"
                             + ("" if args.allow_unphysical else

@@ -4,13 +4,13 @@ Each block adapts a physics object to the protocol -- its residual in the
 constrained form, its solve, and a linearization that owns the
 factorization of its own Jacobian:
 
-===========  =========  ==================  ==========================================
+===========  =========  ==================  ==========================================================
 field        residual   inputs              linearization
-===========  =========  ==================  ==========================================
+===========  =========  ==================  ==========================================================
 ``w`` flow   ``F``      ``x`` if two-way    converged Newton Jacobian, recycled LU
-``u``        ``S``      ``w`` (and ``x``)   LU of ``K_s(rho)``
+``u``        ``S``      ``w`` (and ``x``)   LU of ``K_s(rho)`` (finite strain: the tangent, recycled)
 ``x`` mesh   ``D``      ``u``               mover tangent (or the mover's VJP)
-===========  =========  ==================  ==========================================
+===========  =========  ==================  ==========================================================
 
 Prescribed values of the flow and the structure are constants, so their
 matrices eliminate the Dirichlet columns and their partials have zero fixed
@@ -170,9 +170,13 @@ class FlowField(FieldBlock):
 
 # ---- structure ---------------------------------------------------------------------------
 class StructureLinearization(_EliminatedLinearization):
-    def __init__(self, block, fields, rho, params, factor=None):
+    """Small strain: ``S_u = K_s(rho)`` and its LU. Finite strain: ``S_u`` the tangent at ``u``,
+    solved by the Newton's recycling solver (its last factorization preconditions GMRES)."""
+
+    def __init__(self, block, fields, rho, params, factor=None, solver=None):
         super().__init__(block, fields, rho, params)
         self._factor = factor
+        self._solver = solver
         self._residual = None
 
     @property
@@ -190,18 +194,34 @@ class StructureLinearization(_EliminatedLinearization):
         return self._residual
 
     def matrix(self):
+        if self.st.nonlinear:
+            return self.kept("S_u", lambda: self.st.stiffness(self.rho, self.params, self.value))
         return self.st.stiffness(self.rho, self.params)
 
     def factorization(self):
-        """The LU of ``K_s(rho)`` at this point's SIMP exponent."""
+        """The LU of ``K_s(rho)`` at this point's SIMP exponent (small strain)."""
         if self._factor is None:
             self._factor = self.st.factorize(self.rho, self.params)
         return self._factor
 
+    @property
+    def solver(self):
+        """Finite strain: the recycling solver of the tangent (None before first use)."""
+        return self._solver
+
+    def _solver_for(self):
+        if self._solver is None:
+            self._solver = RecyclingSolver(self.st.direct)
+        return self._solver
+
     def factor_solve(self, b):
+        if self.st.nonlinear:
+            return self._solver_for().solve(self.matrix(), b)
         return self.factorization().solve(b)
 
     def factor_solve_transpose(self, b):
+        if self.st.nonlinear:
+            return self._solver_for().solve_transpose(self.matrix(), b)
         return self.factorization().solve_transpose(b)
 
     def coupling(self, other):
@@ -228,12 +248,14 @@ class StructureLinearization(_EliminatedLinearization):
 
 
 class StructureField(FieldBlock):
-    """The structure's displacement ``u``: SIMP plane-strain elasticity loaded by the flow."""
+    """The structure's displacement ``u``: SIMP plane-strain elasticity loaded by the flow
+    (at finite strain solved by Newton, whose report is the state's ``structure`` report)."""
 
     name, symbol, report_name = "u", "S", ""
 
     def __init__(self, structure: Structure, moving_mesh: bool = False):
         self.structure = structure
+        self.report_name = "structure" if structure.nonlinear else ""
         self.size = structure.size
         self.inputs = ("w", "x") if moving_mesh else ("w",)
         self.slow_couplings = ("x",) if moving_mesh else ()     # S_x: the load's shape derivative
@@ -255,6 +277,12 @@ class StructureField(FieldBlock):
         return StructureLinearization(self, fields, rho, params)
 
     def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
+        if self.structure.nonlinear:         # Newton from the guess (a nearby state), else load steps
+            recycled = previous.solver if isinstance(previous, StructureLinearization) else None
+            solution = self.structure.newton_solve(fields["w"], _moved(fields, self.inputs), rho, params,
+                                                   guess=guess, solver=recycled)
+            lin = StructureLinearization(self, {**fields, "u": solution.u}, rho, params, solver=solution.solver)
+            return solution.u, lin, solution.report.as_dict()
         factor = None
         if (previous is not None and np.array_equal(previous.rho, rho)
                 and previous.params.penalty == params.penalty):

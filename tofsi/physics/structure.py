@@ -1,8 +1,11 @@
-"""The structure S(u; w, x, rho) = K_s(rho) u - f(w, x, rho): plane-strain elasticity with SIMP.
+"""The structure S(u; w, x, rho) = R_int(u; rho) - f(w, x, rho): plane-strain elasticity with SIMP.
 
-Small-strain plane-strain elasticity on Q1, over the whole channel (unified
-domain): element moduli by SIMP, ``E_e = Emin + rho_e^p (E0 - Emin)``, on the
-reference mesh; clamped on the scene's channel sides. The load ``f`` is the
+Plane-strain elasticity on Q1, over the whole channel (unified domain):
+element moduli by SIMP, ``E_e = Emin + rho_e^p (E0 - Emin)``, on the
+reference mesh; clamped on the scene's channel sides. ``structure.model``:
+``linear`` (small strain, ``R_int = K_s(rho) u``) or ``neo-hookean`` (finite
+strain, total Lagrangian, with the energy interpolation of nearly void
+elements; :mod:`tofsi.physics.finite_strain`). The load ``f`` is the
 fluid's force on the solid phase, :class:`~tofsi.physics.fluid_load.FluidForce`
 (``structure.load``: the momentum-consistent reaction by default), on the
 moved mesh ``X + x``, with the solid phase weighted by ``psi_e = rho_e^k``.
@@ -12,8 +15,11 @@ then grows like ``rho^(1 - p)`` as it empties, ``k = p`` keeps it bounded
 
 The SIMP exponent ``p`` and the load exponent ``k`` are inputs of every call
 (a :class:`~tofsi.blocks.Continuation`), never stored state. Partial
-derivatives: ``S_u = K_s`` (constrained), ``S_w = -df/dw``, ``S_x = -df/dx``
-and ``S_rho = E'(rho) K0 u - df/drho``.
+derivatives: ``S_u = K_s`` (constrained; at finite strain the tangent at
+``u``), ``S_w = -df/dw``, ``S_x = -df/dx`` (the load acts on the moved mesh:
+a follower load in two-way coupling) and ``S_rho = dR_int/drho - df/drho``
+(``E'(rho) K0 u`` at small strain; the ``E'(rho)`` and ``g'(rho)`` terms at
+finite strain).
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from tofsi.interpolation import SIMP
 from tofsi.linalg import AMGSolver, DirectSolver, LinearAlgebra, nested_dissection, rigid_body_modes
 from tofsi.linalg.backends import resolve
 from tofsi.mesh import DESIGN, SOLID
+from tofsi.physics.finite_strain import FiniteStrainElasticity, FiniteStrainSolution
 from tofsi.physics.fluid_load import FluidForce
 
 AMG_TOL = 1e-10          # AMG-CG relative residual of the iterative path (the gradient's needs)
@@ -58,7 +65,7 @@ def check_held(mesh, clamped_nodes: np.ndarray, sides) -> None:
 
 
 class Structure:
-    """Linear elasticity of the unified domain, loaded by a :class:`~tofsi.physics.flow.Flow`.
+    """Elasticity of the unified domain, loaded by a :class:`~tofsi.physics.flow.Flow`.
 
     ``params`` arguments default to the settings' load exponent and the
     default SIMP exponent (:class:`~tofsi.blocks.Continuation`); ``linear_algebra`` is the
@@ -82,6 +89,17 @@ class Structure:
         self.K0 = element_stiffness(mesh.points[mesh.quads], *lame(1.0, settings.poisson_ratio))
         self.grid = np.repeat(mesh.grid_positions(), 2, axis=0)      # (2n, 2) fine-grid positions
         self.perm = nested_dissection(self.grid)
+        self.finite = (FiniteStrainElasticity(mesh, settings, self.bc, self.dofs, self.direct, self.K0)
+                       if settings.model == "neo-hookean" else None)
+
+    @property
+    def nonlinear(self) -> bool:
+        """True at finite strain: ``S`` is nonlinear in ``u`` (its tangent depends on ``u``)."""
+        return self.finite is not None
+
+    def direct(self, A) -> DirectSolver:
+        """A direct solver of a stiffness or tangent ``A`` (the model's backend, nested dissection)."""
+        return self.linear_algebra.direct(A, perm=self.perm)
 
     def _params(self, params):
         return self.defaults if params is None else params
@@ -94,17 +112,20 @@ class Structure:
     def element_matrices(self, rho, params=None) -> np.ndarray:
         return self.K0 * self.simp(params)(rho)[:, None, None]
 
-    def stiffness(self, rho, params=None) -> sp.csr_matrix:
-        """``S_u``: the constrained stiffness ``K_s(rho)`` [N/m]."""
+    def stiffness(self, rho, params=None, u=None) -> sp.csr_matrix:
+        """``S_u``: the constrained stiffness ``K_s(rho)`` [N/m] (at finite strain the tangent at ``u``)."""
+        if self.finite is not None:
+            return self.finite.tangent(u, rho, self.simp(params))
         return self.bc.matrix(self.element_matrices(rho, params))
 
-    def factorize(self, rho, params=None) -> DirectSolver | AMGSolver:
-        """The LU of ``K_s(rho)`` (nested-dissection ordering), or on the iterative path its
-        smoothed-aggregation hierarchy (rigid-body modes) for CG to 1e-10 relative."""
+    def factorize(self, rho, params=None, u=None) -> DirectSolver | AMGSolver:
+        """The LU of ``S_u`` (nested-dissection ordering; at finite strain the tangent at ``u``),
+        or on the iterative path its smoothed-aggregation hierarchy (rigid-body modes) for CG to
+        1e-10 relative."""
         if self.linear_algebra.iterative:
-            return AMGSolver(self.stiffness(rho, params), near_null=rigid_body_modes(self.mesh.points),
+            return AMGSolver(self.stiffness(rho, params, u), near_null=rigid_body_modes(self.mesh.points),
                              tol=AMG_TOL)
-        return self.linear_algebra.direct(self.stiffness(rho, params), perm=self.perm)
+        return self.direct(self.stiffness(rho, params, u))
 
     # ---- fluid load --------------------------------------------------------------
     def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
@@ -113,16 +134,28 @@ class Structure:
 
     # ---- residual, solve and partials ----------------------------------------------
     def residual(self, u, w, x, rho, params=None) -> np.ndarray:
-        """``S = K_s(rho) u - f(w, x, rho)`` (unconstrained)."""
+        """``S = R_int(u; rho) - f(w, x, rho)`` (unconstrained); at finite strain an element that
+        inverts raises :class:`~tofsi.errors.NumericalError`."""
+        if self.finite is not None:
+            return self.finite.internal_forces(u, rho, self.simp(params)) - self.load(w, x, rho, params)
         Ke = self.element_matrices(rho, params)
         Ku = assemble_vector(self.dofs, np.einsum("eab,eb->ea", Ke, u[self.dofs]), self.size)
         return Ku - self.load(w, x, rho, params)
 
     def solve(self, w, x=None, rho=None, params=None, factor: DirectSolver | None = None) -> np.ndarray:
         """``u`` with ``S(u) = 0`` and the clamped dofs at zero (``factor``: the LU of
-        ``K_s(rho)`` at these ``params``, if already made)."""
+        ``K_s(rho)`` at these ``params``, if already made; at finite strain
+        :meth:`newton_solve` from zero)."""
+        if self.finite is not None:
+            return self.newton_solve(w, x, rho, params).u
         factor = self.factorize(rho, params) if factor is None else factor
         return factor.solve(self.bc.homogenize(self.load(w, x, rho, params)))
+
+    def newton_solve(self, w, x=None, rho=None, params=None, guess=None, solver=None) -> FiniteStrainSolution:
+        """Finite strain: Newton with load steps, cutback and line search
+        (:meth:`~tofsi.physics.finite_strain.FiniteStrainElasticity.solve`), from ``guess`` if
+        given; ``solver`` a recycling solver whose factorization may precondition this solve."""
+        return self.finite.solve(self.load(w, x, rho, params), rho, self.simp(params), guess, solver)
 
     def displacement_beyond_channel(self, u) -> str:
         """A sentence if the largest displacement exceeds the channel's extent (a structure
@@ -155,8 +188,12 @@ class Structure:
         return -self.force.shape_partial(w, x, rho, self._params(params))
 
     def density_vectors(self, u, w, x, rho, params=None) -> np.ndarray:
-        """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e``."""
-        Ku = np.einsum("eab,eb->ea", self.K0, u[self.dofs]) * self.simp(params).derivative(rho)[:, None]
+        """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e`` (at finite strain
+        ``dR_int,e/drho_e`` with the ``E'(rho)`` and ``g'(rho)`` terms)."""
+        if self.finite is not None:
+            Ku = self.finite.density_vectors(u, rho, self.simp(params))
+        else:
+            Ku = np.einsum("eab,eb->ea", self.K0, u[self.dofs]) * self.simp(params).derivative(rho)[:, None]
         return Ku - self.force.density_vectors(w, x, rho, self._params(params))
 
     def density_partial(self, u, w, x, rho, params=None) -> sp.csr_matrix:
