@@ -52,7 +52,7 @@ def post_flow(overrides):
 
 def smallest_det(mesh, structure, u, elements) -> float:
     """min det(I + grad u) over the Gauss points of ``elements``."""
-    F = structure.finite.kernel.deformation_gradient(u[structure.dofs])[elements]
+    F = structure.finite().kernel.deformation_gradient(u[structure.dofs])[elements]
     return float((F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]).min())
 
 

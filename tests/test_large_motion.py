@@ -31,7 +31,7 @@ def test_the_inflow_ramp_carries_a_solve_the_full_load_cannot_reach():
             model.densities())
     state = model.solve(model.densities())
     ramp = state.reports["load_ramp"]
-    assert ramp["steps"][-1] == 1.0 and len(ramp["steps"]) >= 3 and ramp["cutbacks"] >= 1
+    assert ramp["steps"][-1] == 1.0 and len(ramp["steps"]) >= 3
     assert state.params == model.params and state.params.load == 1.0
     assert np.abs(state.u).max() > 0.4                        # large motion: 40 % of the channel
     system, tol = model.system, model.scene.coupled.tol

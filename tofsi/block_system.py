@@ -49,6 +49,7 @@ from tofsi.linalg import BlockGaussSeidel, LinearAlgebra, RecyclingSolver, neste
 from tofsi.linalg.backends import canonical_csr, resolve
 
 log = logging.getLogger(__name__)
+EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exactly" (after a failed line search)
 
 
 @dataclass(frozen=True)
@@ -323,25 +324,40 @@ class BlockSystem:
             if kept is None and s.quasi_newton:         # the slow couplings of the first iterate
                 kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
                         for o in getattr(b, "slow_couplings", ()) if o in comp}
-            J, b = self.jacobian(lins, comp, kept), -np.concatenate(R)
+            b = -np.concatenate(R)
             eta = forcing_term([max(h[n] for n in comp) for h in history], s.tol)    # inexact Newton
-            try:
-                step = solver.solve(J, b, rtol=eta)
-            except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
-                log.warning("monolithic Newton %d: %s; factorizing the whole Jacobian instead", it, err)
-                history[-1]["fallback"] = "direct"
-                solver = self.linear_solver(comp, "direct")
-                step = solver.solve(J, b, rtol=eta)
-            dz = self.split(step, comp)
-
-            def trial(alpha):
-                values = dict(fields)
-                values.update({n: fields[n] + alpha * dz[n] for n in comp})
-                return merit(values)[0], values
-            found = backtracking(max(norms), trial)
+            found, solver = self._newton_step(comp, lins, kept, b, eta, solver, fields, merit, max(norms),
+                                              history)
+            if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
+                log.info("monolithic Newton %d: no decrease along the %s step; the exact Newton step "
+                         "from here on", it, "quasi-Newton" if kept else "inexact")
+                history[-1]["exact_step"] = True
+                kept = {}                                      # the true couplings from here on
+                found, solver = self._newton_step(comp, lins, kept, b, EXACT_STEP, solver, fields, merit,
+                                                  max(norms), history)
             if found is None:
                 raise NumericalError("monolithic coupling: line search found no decrease",
                                      {"history": history})
             fields.update(found[1])
         raise NumericalError(f"monolithic coupling did not converge in {s.max_iter} Newton iterations",
                              {"history": history})
+
+    def _newton_step(self, comp, lins, kept, b, rtol, solver, fields, merit, norm, history):
+        """One Newton step of the monolithic solve: the block Jacobian (with the ``kept`` couplings)
+        solved to ``rtol``, then the backtracking line search on the merit. Returns ``(the accepted
+        fields or None, the solver)`` -- the whole Jacobian's LU when GMRES fails."""
+        J = self.jacobian(lins, comp, kept)
+        try:
+            step = solver.solve(J, b, rtol=rtol)
+        except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
+            log.warning("monolithic Newton %d: %s; factorizing the whole Jacobian instead", len(history) - 1, err)
+            history[-1]["fallback"] = "direct"
+            solver = self.linear_solver(comp, "direct")
+            step = solver.solve(J, b, rtol=rtol)
+        dz = self.split(step, comp)
+
+        def trial(alpha):
+            values = dict(fields)
+            values.update({n: fields[n] + alpha * dz[n] for n in comp})
+            return merit(values)[0], values
+        return backtracking(norm, trial), solver

@@ -59,6 +59,9 @@ class Continuation:
     load : the fraction of the flow's prescribed boundary velocities (the inflow) the
         solve applies: 1 is the problem; below 1, a step of the load continuation that
         carries a coupled solve to large motion (:mod:`tofsi.load_ramp`)
+    structure_model : ``"linear"`` or ``"neo-hookean"`` for this stage (a design schedule:
+        small strain while the design is gray, finite strain once the topology exists);
+        ``""``: the structure's own ``structure.model``
     """
 
     penalty: float = 3.0
@@ -67,6 +70,7 @@ class Continuation:
     load_exponent: float = 1.0
     coupling: str = ""
     load: float = 1.0
+    structure_model: str = ""
 
 
 class Linearization(ABC):

@@ -49,7 +49,7 @@ def continuation(scene, stage: int = 0) -> Continuation:
                         brinkman_q=float(pick(d.brinkman_q, defaults.brinkman_q)),
                         beta=float(pick(d.beta, defaults.beta)),
                         load_exponent=scene.structure.load_exponent,
-                        coupling=pick(d.coupling, ""))
+                        coupling=pick(d.coupling, ""), structure_model=pick(d.structure_model, ""))
 
 
 def two_way_stages(scene) -> list[int]:

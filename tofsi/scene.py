@@ -149,6 +149,9 @@ def _check_across_tables(scene: Scene) -> None:
     if "two-way" in scene.design.coupling and not two_way:
         raise InputError("design.coupling", list(scene.design.coupling),
                          "two-way stages need effects.coupling = \"two-way\" and a mover (mover.name)")
+    if scene.design.structure_model and effects.structure == "none":
+        raise InputError("design.structure_model", list(scene.design.structure_model),
+                         "a structure model per stage needs a structure (effects.structure)")
     if scene.has_design:
         needs = OBJECTIVES.get(scene.design.objective).needs       # the effect it is a figure of
         if getattr(effects, needs) == "none":

@@ -201,6 +201,12 @@ class DesignSettings:
     skewness_ks: float = option(100.0, gt=0, le=1e4,
                                 doc="KS parameter p of the mesh-quality constraint's soft minimum (within "
                                     "log(4 E)/p below the worst corner)")
+    structure_model: tuple[str, ...] = option((), choices=("linear", "neo-hookean"),
+                                              doc="structure model of each stage (last value kept): "
+                                                  "small strain while the design is gray (a gray start is "
+                                                  "no physical state either way, and finite strain crushes "
+                                                  "it), finite strain once the topology exists; empty: "
+                                                  "structure.model throughout")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
                                   "(path relative to the working directory); empty: uniform")
@@ -213,7 +219,8 @@ class DesignSettings:
     @property
     def n_stages(self) -> int:
         """Continuation stages: the longest schedule (the others keep their last value)."""
-        return max(len(self.beta), len(self.penalty), len(self.brinkman_q), len(self.coupling), 1)
+        return max(len(self.beta), len(self.penalty), len(self.brinkman_q), len(self.coupling),
+                   len(self.structure_model), 1)
 
 
 @dataclass(frozen=True)

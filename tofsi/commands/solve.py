@@ -103,7 +103,7 @@ def run(scene, args, ctx) -> dict:
         beyond = model.structure.displacement_beyond_channel(state.u)
         if beyond:
             physical = False
-            strain = "finite-strain" if model.structure.nonlinear else "small-strain"
+            strain = "finite-strain" if model.structure.nonlinear(state.params) else "small-strain"
             warnings.append(beyond + f": the {strain} answer for a design far too soft for the "
                             "flow, not a physical state (optimize starts from it); for a designed "
                             "structure: --design FILE (the design.npy of tofsi optimize) with --stage last"

@@ -194,7 +194,7 @@ class StructureLinearization(_EliminatedLinearization):
         return self._residual
 
     def matrix(self):
-        if self.st.nonlinear:
+        if self.st.nonlinear(self.params):
             return self.kept("S_u", lambda: self.st.stiffness(self.rho, self.params, self.value))
         return self.st.stiffness(self.rho, self.params)
 
@@ -215,12 +215,12 @@ class StructureLinearization(_EliminatedLinearization):
         return self._solver
 
     def factor_solve(self, b):
-        if self.st.nonlinear:
+        if self.st.nonlinear(self.params):
             return self._solver_for().solve(self.matrix(), b)
         return self.factorization().solve(b)
 
     def factor_solve_transpose(self, b):
-        if self.st.nonlinear:
+        if self.st.nonlinear(self.params):
             return self._solver_for().solve_transpose(self.matrix(), b)
         return self.factorization().solve_transpose(b)
 
@@ -255,7 +255,7 @@ class StructureField(FieldBlock):
 
     def __init__(self, structure: Structure, moving_mesh: bool = False):
         self.structure = structure
-        self.report_name = "structure" if structure.nonlinear else ""
+        self.report_name = "structure"          # a finite-strain solve's Newton report (small strain: none)
         self.size = structure.size
         self.inputs = ("w", "x") if moving_mesh else ("w",)
         self.slow_couplings = ("x",) if moving_mesh else ()     # S_x: the load's shape derivative
@@ -277,15 +277,15 @@ class StructureField(FieldBlock):
         return StructureLinearization(self, fields, rho, params)
 
     def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
-        if self.structure.nonlinear:         # Newton from the guess (a nearby state), else load steps
+        if self.structure.nonlinear(params):  # Newton from the guess (a nearby state), else load steps
             recycled = previous.solver if isinstance(previous, StructureLinearization) else None
             solution = self.structure.newton_solve(fields["w"], _moved(fields, self.inputs), rho, params,
                                                    guess=guess, solver=recycled)
             lin = StructureLinearization(self, {**fields, "u": solution.u}, rho, params, solver=solution.solver)
             return solution.u, lin, solution.report.as_dict()
         factor = None
-        if (previous is not None and np.array_equal(previous.rho, rho)
-                and previous.params.penalty == params.penalty):
+        if (previous is not None and np.array_equal(previous.rho, rho) and previous.params.penalty == params.penalty
+                and not self.structure.nonlinear(previous.params)):
             factor = previous.factorization()                     # K_s depends on (rho, p) only
         values = dict(fields)
         lin = StructureLinearization(self, values, rho, params, factor)

@@ -89,13 +89,25 @@ class Structure:
         self.K0 = element_stiffness(mesh.points[mesh.quads], *lame(1.0, settings.poisson_ratio))
         self.grid = np.repeat(mesh.grid_positions(), 2, axis=0)      # (2n, 2) fine-grid positions
         self.perm = nested_dissection(self.grid)
-        self.finite = (FiniteStrainElasticity(mesh, settings, self.bc, self.dofs, self.direct, self.K0)
-                       if settings.model == "neo-hookean" else None)
+        self._finite_strain = None     # its precomputed operators, built when a stage first asks
 
-    @property
-    def nonlinear(self) -> bool:
+    def model(self, params=None) -> str:
+        """The structure model of a solve: the continuation record's stage model (a design schedule,
+        ``design.structure_model``), else the settings' ``structure.model``."""
+        return self._params(params).structure_model or self.settings.model
+
+    def finite(self, params=None) -> FiniteStrainElasticity | None:
+        """The finite-strain elasticity when the solve's model is neo-Hookean, else None."""
+        if self.model(params) != "neo-hookean":
+            return None
+        if self._finite_strain is None:
+            self._finite_strain = FiniteStrainElasticity(self.mesh, self.settings, self.bc, self.dofs,
+                                                         self.direct, self.K0)
+        return self._finite_strain
+
+    def nonlinear(self, params=None) -> bool:
         """True at finite strain: ``S`` is nonlinear in ``u`` (its tangent depends on ``u``)."""
-        return self.finite is not None
+        return self.model(params) == "neo-hookean"
 
     def direct(self, A) -> DirectSolver:
         """A direct solver of a stiffness or tangent ``A`` (the model's backend, nested dissection)."""
@@ -114,8 +126,9 @@ class Structure:
 
     def stiffness(self, rho, params=None, u=None) -> sp.csr_matrix:
         """``S_u``: the constrained stiffness ``K_s(rho)`` [N/m] (at finite strain the tangent at ``u``)."""
-        if self.finite is not None:
-            return self.finite.tangent(u, rho, self.simp(params))
+        finite = self.finite(params)
+        if finite is not None:
+            return finite.tangent(u, rho, self.simp(params))
         return self.bc.matrix(self.element_matrices(rho, params))
 
     def factorize(self, rho, params=None, u=None) -> DirectSolver | AMGSolver:
@@ -136,8 +149,9 @@ class Structure:
     def residual(self, u, w, x, rho, params=None) -> np.ndarray:
         """``S = R_int(u; rho) - f(w, x, rho)`` (unconstrained); at finite strain an element that
         inverts raises :class:`~tofsi.errors.NumericalError`."""
-        if self.finite is not None:
-            return self.finite.internal_forces(u, rho, self.simp(params)) - self.load(w, x, rho, params)
+        finite = self.finite(params)
+        if finite is not None:
+            return finite.internal_forces(u, rho, self.simp(params)) - self.load(w, x, rho, params)
         Ke = self.element_matrices(rho, params)
         Ku = assemble_vector(self.dofs, np.einsum("eab,eb->ea", Ke, u[self.dofs]), self.size)
         return Ku - self.load(w, x, rho, params)
@@ -146,7 +160,7 @@ class Structure:
         """``u`` with ``S(u) = 0`` and the clamped dofs at zero (``factor``: the LU of
         ``K_s(rho)`` at these ``params``, if already made; at finite strain
         :meth:`newton_solve` from zero)."""
-        if self.finite is not None:
+        if self.nonlinear(params):
             return self.newton_solve(w, x, rho, params).u
         factor = self.factorize(rho, params) if factor is None else factor
         return factor.solve(self.bc.homogenize(self.load(w, x, rho, params)))
@@ -155,7 +169,7 @@ class Structure:
         """Finite strain: Newton with load steps, cutback and line search
         (:meth:`~tofsi.physics.finite_strain.FiniteStrainElasticity.solve`), from ``guess`` if
         given; ``solver`` a recycling solver whose factorization may precondition this solve."""
-        return self.finite.solve(self.load(w, x, rho, params), rho, self.simp(params), guess, solver)
+        return self.finite(params).solve(self.load(w, x, rho, params), rho, self.simp(params), guess, solver)
 
     def displacement_beyond_channel(self, u) -> str:
         """A sentence if the largest displacement exceeds the channel's extent (a structure
@@ -190,8 +204,9 @@ class Structure:
     def density_vectors(self, u, w, x, rho, params=None) -> np.ndarray:
         """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e`` (at finite strain
         ``dR_int,e/drho_e`` with the ``E'(rho)`` and ``g'(rho)`` terms)."""
-        if self.finite is not None:
-            Ku = self.finite.density_vectors(u, rho, self.simp(params))
+        finite = self.finite(params)
+        if finite is not None:
+            Ku = finite.density_vectors(u, rho, self.simp(params))
         else:
             Ku = np.einsum("eab,eb->ea", self.K0, u[self.dofs]) * self.simp(params).derivative(rho)[:, None]
         return Ku - self.force.density_vectors(w, x, rho, self._params(params))
