@@ -168,3 +168,23 @@ def test_check_gradients_checks_the_first_two_way_stage_by_default(cli, tmp_path
     figures = json.loads(run.stdout)
     assert figures["stage"] == 0 and figures["coupling"] == "one-way"
     assert not {"F_x", "D_x"} & {r["check"] for r in figures["checks"]}
+
+
+def test_a_stage_of_the_structure_model_schedule_solves_as_that_model():
+    """``design.structure_model = ["linear", "neo-hookean"]``: stage 0 is the small-strain solve,
+    stage 1 the finite-strain one, each equal to the scene with that ``structure.model``."""
+    base = ["mesh.h_min=0.1", "mesh.h_max=0.1", "structure.youngs_modulus=1e4", "design.beta=[1.0, 2.0]"]
+    staged = tofsi.Problem(load("beam_in_channel_optimization", *base,
+                                'design.structure_model=["linear", "neo-hookean"]'))
+    gamma = np.random.default_rng(2).uniform(0.4, 0.9, staged.n_design)
+    for stage, model in ((0, "linear"), (1, "neo-hookean")):
+        alone = tofsi.Problem(load("beam_in_channel_optimization", *base, f"structure.model={model}"))
+        for p in (staged, alone):
+            p.set_stage(continuation(p.scene, stage))
+        assert staged.model.structure.nonlinear(staged.params) == (model == "neo-hookean")
+        a, b = staged.evaluate(gamma), alone.evaluate(gamma)
+        assert a[0] == pytest.approx(b[0], rel=1e-10)
+        np.testing.assert_allclose(a[1], b[1], rtol=1e-8, atol=1e-10 * np.abs(b[1]).max())
+    linear, finite = (tofsi.Problem(load("beam_in_channel_optimization", *base, f"structure.model={m}"))
+                      for m in ("linear", "neo-hookean"))
+    assert abs(linear.evaluate(gamma)[0] / finite.evaluate(gamma)[0] - 1) > 1e-4   # the models differ here
