@@ -25,6 +25,7 @@ from pathlib import Path
 import tofsi
 from tofsi.commands.context import RunContext
 from tofsi.commands.optimize import Pictures
+from tofsi.coupled import continuation
 from tofsi.errors import InputError, WriteError
 from tofsi.optimize import Optimizer
 from tofsi.plotting import plot_convergence
@@ -38,16 +39,26 @@ SMALL = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.2", "optimi
 
 
 def main(output: Path, overrides=(), overwrite: bool = False) -> dict:
+    """The headline: the scene above, with ``SMALL`` in small mode."""
+    return optimize_scene(SCENE, output, overrides, overwrite, SMALL,
+                          "Young's modulus raised from 5 kPa to 1 MPa, so the coarse gray designs of six "
+                          "iterations hold against the flow", "examples/optimize_fsi.py")
+
+
+def optimize_scene(scene_file: Path, output: Path, overrides=(), overwrite: bool = False, small=(),
+                   small_note: str = "", program: str = "") -> dict:
+    """Optimize a two-way scene into ``output`` with a line per ten iterations (every two-way one),
+    pictures, the VTU series, the convergence plot and the run's provenance; in small mode
+    (``TOFSI_EXAMPLE_SMALL``) with the overrides ``small`` first, saying what they change."""
     if os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0":
-        overrides = SMALL + list(overrides)
-        print("small mode (TOFSI_EXAMPLE_SMALL): " + ", ".join(SMALL) + " -- Young's modulus raised "
-              "from 5 kPa to 1 MPa, so the coarse gray designs of six iterations hold against the flow")
-    scene = tofsi.load_scene(SCENE, list(overrides))
-    folder = RunFolder(output, program="examples/optimize_fsi.py", overwrite=overwrite,
-                       replaces_own=True).check()
+        overrides = list(small) + list(overrides)
+        print("small mode (TOFSI_EXAMPLE_SMALL): " + ", ".join(small) + (f" -- {small_note}" if small_note else ""))
+    scene = tofsi.load_scene(scene_file, list(overrides))
+    folder = RunFolder(output, program=program, overwrite=overwrite, replaces_own=True).check()
     problem = tofsi.Problem(scene)         # flow, structure and mesh motion: a two-way block system
     d = scene.design
-    stages = [f"beta {b:g} {c}" for b, c in zip(d.beta, d.coupling)]
+    stages = [f"beta {continuation(scene, k).beta:g} {continuation(scene, k).coupling or scene.effects.coupling}"
+              for k in range(d.n_stages)]
     print(f"{problem.n_design} design variables, mover {scene.mover.name}, "
           f"{problem.model.mesh.n_elements} elements; stages: " + ", ".join(stages))
 
@@ -57,10 +68,15 @@ def main(output: Path, overrides=(), overwrite: bool = False) -> dict:
             print(f"  iteration {it.iteration:4d}  {it.coupling:7s}  compliance {it.objective:.5g}"
                   f"  volume {it.volume:.4f}{quality}  {it.time_s:6.1f} s")
 
+    def fallback(iteration, fallbacks, step, error):
+        print(f"  iteration {iteration:4d}  a trial design failed ({str(error)[:120]}); back to the last good "
+              f"design, move limit {step:.3g} (fallback {fallbacks})")
+
     ctx = RunContext(output=Path(output), folder=folder,
                      record=run_record(scene, overrides, sys.argv, folder.program))
     ctx.begin()
-    optimizer = Optimizer(problem, output, on_iteration=report, on_picture=Pictures(ctx, problem))
+    optimizer = Optimizer(problem, output, on_iteration=report, on_picture=Pictures(ctx, problem),
+                          on_fallback=fallback)
     result = optimizer.run()
     history = [h.__dict__ for h in optimizer.history]
     plot_convergence(Path(output) / "convergence.png", history, title=f"two-way, {scene.mover.name} mover",
@@ -71,7 +87,7 @@ def main(output: Path, overrides=(), overwrite: bool = False) -> dict:
     ctx.finish(0)
     print(f"final compliance {result['objective']:.5g} J/m, volume {result['volume']:.4f}, largest "
           f"displacement {result['max_displacement']:.3g} m, min skewness over the two-way stages "
-          f"{result['min_skewness_over_run']:.3f}, {result['wall_time_s']:.0f} s")
+          f"{result['min_skewness_over_run']:.3f}, {result['fallbacks']} fallbacks, {result['wall_time_s']:.0f} s")
     print(f"pictures, VTU series (design_series.pvd), history and checkpoint in {output}")
     return result
 

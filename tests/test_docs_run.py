@@ -20,7 +20,8 @@ SMALL = {"foil_in_channel": ["mesh.h_min=0.05", "mesh.h_max=0.1"],
 EXAMPLE_ARGS = {"optimize_beam_in_channel.py": [], "optimize_fsi.py": [], "compare_movers.py": [],
                 "compare_mesh_motion.py": [], "compare_void_interpolation.py": [],
                 "move_foil.py": ["rotation"], "mesh_motion_study.py": ["all", "--jobs", "2"],
-                "tuning_band_study.py": ["all", "--jobs", "1"]}
+                "tuning_band_study.py": ["all", "--jobs", "1"], "optimize_large_deformation.py": [],
+                "compare_large_deformation.py": ["--jobs", "2"]}
 
 
 PICTURES = re.findall(r"\]\(docs/img/optimization/([\w-]+)/([\w.-]+\.png)\)", README)

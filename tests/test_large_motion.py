@@ -111,6 +111,55 @@ def test_a_failing_first_design_of_a_stage_stops_the_run_saying_there_is_nothing
         opt.run()
 
 
+def stage_start_failing(output, on_iteration=None, on_fallback=None):
+    """An optimizer (4 evaluations a stage) whose first solve at beta 2 fails, once."""
+    problem = tofsi.Problem(load("beam_in_channel_optimization", *TINY, "optimizer.max_iter=14",
+                                 "design.stage_iterations=4"))
+    opt = Optimizer(problem, output, on_iteration=on_iteration, on_fallback=on_fallback)
+    solve, failed = problem.model.solve, []
+
+    def flaky(*args, **kwargs):
+        if problem.params.beta == 2.0 and not failed:
+            failed.append(len(opt.history))
+            raise NumericalError("forced failure of a stage's first design", {"forced": True})
+        return solve(*args, **kwargs)
+    problem.model.solve = flaky
+    return opt, failed
+
+
+def test_a_failing_first_design_of_a_later_stage_is_bridged_halfway_and_the_run_goes_on(tmp_path):
+    """Stage 1 (beta 2) fails at its first design: a bridging stage at beta sqrt(2) runs first,
+    then stage 1 again from the bridge's design; a resume inside the bridge is bitwise."""
+    lines = []
+    opt, failed = stage_start_failing(tmp_path / "a", on_fallback=lambda *a: lines.append(a))
+    result = opt.run()
+    betas = [h.beta for h in opt.history]
+    assert failed == [4] and result["fallbacks"] == 1 and lines[0][2] is None
+    assert betas == [1.0] * 4 + [pytest.approx(2 ** 0.5)] * 4 + [2.0] * 4 + [4.0] * 2
+    assert [h.stage for h in opt.history] == [0] * 4 + [1] * 8 + [2] * 2
+    assert opt.history[8].change <= 0.05 + 1e-12          # stage 1 starts from the bridge's design
+
+    def interrupt(it):
+        if it.iteration == 6:
+            raise KeyboardInterrupt
+    cut, _ = stage_start_failing(tmp_path / "cut", on_iteration=interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        cut.run()
+    resumed = Optimizer(tofsi.Problem(cut.scene), tmp_path / "cut")
+    resumed.run(resume=True)
+    key = lambda h: (h.iteration, h.stage, h.beta, h.objective, h.volume, h.change, h.fallbacks)
+    assert [key(h) for h in resumed.history] == [key(h) for h in opt.history]
+
+
+def test_bridge_takes_every_continued_parameter_halfway():
+    from tofsi.blocks import Continuation
+    from tofsi.optimize import bridge
+    a, b = Continuation(beta=4.0, penalty=3.0, brinkman_q=0.0), Continuation(beta=16.0, penalty=3.0,
+                                                                            brinkman_q=0.1, coupling="two-way")
+    assert bridge(a, b) == Continuation(beta=8.0, penalty=3.0, brinkman_q=0.05, coupling="two-way")
+    assert bridge(None, b) is None and bridge(b, b) is None
+
+
 QUALITY = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.min_skewness=0.5"]
 
 

@@ -44,12 +44,19 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
     meta = {"scene": problem.scene.name, "stage": run.stage, "n_stage_evaluations": len(run.log),
             "scale": run.scale, "history": [asdict(h) for h in history], "stage_start": run.start.tolist(),
             "failures": failures, "fallbacks_at_start": run.fallbacks_at_start,
+            "params": record(run.params), "pending": [record(r) for r in run.pending],
+            "previous": record(run.previous),
             "identity": identity(problem.scene, problem.model.mesh, problem.n_design)}
 
     def write(tmp):
         with open(tmp, "wb") as fh:
             np.savez(fh, meta=np.array(json.dumps(meta)), rho=state.rho, **fields, **arrays)
     atomic_write(path, write)
+
+
+def record(params) -> dict | None:
+    """A stage record (:class:`tofsi.blocks.Continuation`) as JSON (None stays None)."""
+    return None if params is None else asdict(params)
 
 
 def read_stage(path, problem) -> tuple[dict, list[dict], State]:

@@ -18,9 +18,21 @@ the last design that solved with half the initial step (``INITIAL_STEP``: its
 move limit), and goes on. Fallbacks are counted in the history
 (``fallbacks``), on the progress line and in the result; the run stops with
 exit status 3 only after ``optimizer.max_failures`` consecutive failures, or
-when a stage's first design fails (there is no good design of that stage to
-go back to), with the iteration, the stage and the cause (the mover names the
-element) in the message.
+or when a stage's first design fails and cannot be bridged, with the
+iteration, the stage and the cause (the mover names the element) in the
+message.
+
+A stage's first design can fail too: the previous stage's design, sharpened
+by the new stage's projection (or solved two-way for the first time), may
+ask for a motion the mesh cannot follow. There is no good design of the new
+stage to go back to, so the driver steps back in the continuation instead:
+it inserts a *bridging stage* halfway between the two stages' records (the
+geometric mean of every continued parameter that differs: beta, the SIMP
+penalty, the Brinkman q; the coupling and structure model of the new stage),
+optimizes it for ``design.stage_iterations`` and tries the stage again from
+its design; bridges may nest, at most ``optimizer.max_failures`` per stage.
+Each bridge counts as a fallback; its history rows carry the stage's number
+and the bridge's parameters.
 
 Resuming is exact. NLopt's MMA keeps internal state that cannot be saved,
 so a checkpoint (:mod:`tofsi.checkpoint`) holds every evaluation of the
@@ -38,14 +50,16 @@ system's (``model.system.names``).
 from __future__ import annotations
 
 import logging
+import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import nlopt
 import numpy as np
 
 from tofsi import quality
+from tofsi.blocks import Continuation
 from tofsi.checkpoint import read_stage, write_checkpoint
 from tofsi.coupled import continuation
 from tofsi.errors import InputError, NumericalError
@@ -88,6 +102,32 @@ class TrialFailed(Exception):
         self.error = error
 
 
+class StageStartFailed(Exception):
+    """A stage's first design failed: no good design of the stage to fall back to (``error``)."""
+
+    def __init__(self, error: NumericalError):
+        super().__init__(str(error))
+        self.error = error
+
+
+CONTINUED = ("beta", "penalty", "brinkman_q")     # the parameters a bridging stage takes halfway
+
+
+def bridge(previous: Continuation | None, target: Continuation) -> Continuation | None:
+    """The stage record halfway from ``previous`` to ``target``: the geometric mean of each
+    continued parameter that differs (the arithmetic one where either is 0), the rest as
+    ``target``; None when there is nothing to bridge (no previous stage, or the two records
+    differ by less than 5 % in every continued parameter)."""
+    if previous is None:
+        return None
+    halfway = {}
+    for name in CONTINUED:
+        a, b = getattr(previous, name), getattr(target, name)
+        if abs(b - a) > 0.05 * max(abs(a), abs(b)):
+            halfway[name] = math.sqrt(a * b) if a > 0 and b > 0 else 0.5 * (a + b)
+    return replace(target, **halfway) if halfway else None
+
+
 def stop_reason(result: int) -> str:
     """Why NLopt ended a stage: ``max_iter`` (the evaluation budget) or NLopt's own reason."""
     if result == nlopt.MAXEVAL_REACHED:
@@ -125,6 +165,10 @@ class StageRun:
     last: tuple | None = None                   # (gamma, entry) of the last good evaluation
     failures_in_a_row: int = 0
     fallbacks_at_start: int = 0                 # the run's fallbacks before the stage
+    params: Continuation | None = None          # the record it runs with (a bridge's, or the stage's)
+    pending: list = field(default_factory=list)  # records of this stage still to run after it (bridges)
+    previous: Continuation | None = None        # the record of the stage (or bridge) before it
+    first_row: int = 0                          # its first row in the history
 
 
 class Optimizer:
@@ -133,7 +177,7 @@ class Optimizer:
     on_iteration : optional callback ``(Iteration) -> None`` (progress lines, tests)
     on_picture : optional callback ``(iteration, gamma, state) -> None`` (pictures, VTU)
     on_fallback : optional callback ``(iteration, fallbacks, move limit, error) -> None`` after a
-        failed trial design
+        failed trial design (move limit None: a stage's first design failed; a bridging stage next)
     """
 
     def __init__(self, problem, output: Path, on_iteration=None, on_picture=None, on_fallback=None):
@@ -217,33 +261,61 @@ class Optimizer:
         checkpoint), without the final evaluation and summary of :meth:`run`."""
         p, s, d = self.problem, self.settings, self.design
         gamma = p.initial_design()
-        resumed = None
+        run, previous = None, None
         if resume:
             meta, replay, state = read_stage(self.checkpoint_path, p)
             skip = meta["history"][-1]["iteration"] + 1 - sum(not e.get("failed") for e in replay)
             self.history = [Iteration(**h) for h in meta["history"][:skip]]
             self.fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
-            resumed = StageRun(meta["stage"], np.asarray(meta["stage_start"], dtype=float), meta["scale"],
-                               replay=replay, fallbacks_at_start=self.fallbacks)
+            record = lambda r: None if r is None else Continuation(**r)
+            stage = meta["stage"]
+            run = StageRun(stage, np.asarray(meta["stage_start"], dtype=float), meta["scale"], replay=replay,
+                           fallbacks_at_start=self.fallbacks, first_row=skip,
+                           params=record(meta.get("params")) or continuation(self.scene, stage),
+                           pending=[record(r) for r in meta.get("pending", [])],
+                           previous=record(meta.get("previous")) or (continuation(self.scene, stage - 1)
+                                                                     if stage else None))
+            previous = run.previous
             p.set_guess(state)
-        for stage in range(resumed.stage if resumed else 0, end):
-            remaining = s.max_iter - len(self.history)
-            if remaining <= 0:
-                break
-            p.set_stage(continuation(self.scene, stage))
-            if resumed is not None and stage == resumed.stage:
-                self.run_stage = resumed              # the stage's start and scale, replayed
-            else:                                     # each stage starts within the volume bound
-                self.run_stage = StageRun(stage, p.feasible(gamma), fallbacks_at_start=self.fallbacks)
-            last_stage = stage == d.n_stages - 1
-            gamma = self._run_stage(remaining if last_stage else min(remaining, d.stage_iterations))
+        for stage in range(run.stage if run else 0, end):
+            pending = run.pending + [run.params] if run else [continuation(self.scene, stage)]
+            while pending:                            # the stage's record, after the bridges it needs
+                remaining = s.max_iter - len(self.history)
+                if remaining <= 0:
+                    return gamma
+                params = pending.pop()
+                p.set_stage(params)
+                if run is None:                       # each stage starts within the volume bound
+                    run = StageRun(stage, p.feasible(gamma), fallbacks_at_start=self.fallbacks, params=params,
+                                   pending=list(pending), previous=previous, first_row=len(self.history))
+                self.run_stage = run                  # (a resumed one: its start and scale, replayed)
+                last = stage == d.n_stages - 1 and not pending
+                try:
+                    gamma = self._run_stage(remaining if last else min(remaining, d.stage_iterations))
+                    previous = params
+                except StageStartFailed as failed:
+                    pending += [params, self._bridge(previous, params, len(pending), failed.error)]
+                run = None
         return gamma
 
-    def _converged(self, stage: int) -> bool:
-        """Stop a stage once the design settles: after ``MIN_STAGE`` evaluations, the largest
-        change below ``tol_change`` twice in a row, or the relative objective change below
-        ``tol_objective`` three times in a row."""
-        h = [it for it in self.history if it.stage == stage]
+    def _bridge(self, previous, params, bridges: int, error: NumericalError) -> Continuation:
+        """The bridging stage to try after the first design of the stage record ``params`` failed
+        (``bridges``: those already pending for it), or the run's failure when none is left."""
+        halfway = bridge(previous, params) if bridges < self.settings.max_failures else None
+        if halfway is None:
+            raise error                                   # (the failed trial is counted already)
+        log.info("design iteration %d: the first design of stage %d (beta %g) failed (%s); a bridging "
+                 "stage at beta %g, penalty %g, q %g first (fallback %d)", len(self.history), self.run_stage.stage,
+                 params.beta, error, halfway.beta, halfway.penalty, halfway.brinkman_q, self.fallbacks)
+        if self.on_fallback:
+            self.on_fallback(len(self.history), self.fallbacks, None, error)
+        return halfway
+
+    def _converged(self) -> bool:
+        """Stop the running stage (or bridge) once the design settles: after ``MIN_STAGE``
+        evaluations, the largest change below ``tol_change`` twice in a row, or the relative
+        objective change below ``tol_objective`` three times in a row."""
+        h = self.history[self.run_stage.first_row:]
         if len(h) < MIN_STAGE:
             return False
         s = self.settings
@@ -286,8 +358,11 @@ class Optimizer:
         diagnostic = {"iteration": len(self.history), "stage": run.stage, "fallbacks": self.fallbacks,
                       "failures_in_a_row": run.failures_in_a_row, **error.diagnostic}
         if run.last is None:
-            raise NumericalError(f"{where}: the stage's first design failed, so there is no good design of "
-                                 f"this stage to fall back to: {error}", diagnostic, state=error.state)
+            raise StageStartFailed(NumericalError(
+                f"{where}: the stage's first design failed, so there is no good design of this stage to fall "
+                f"back to, and no bridging stage is left (a bridge needs an earlier stage whose beta, penalty "
+                f"or q differs by 5 % or more; at most optimizer.max_failures nested per stage): {error}",
+                diagnostic, state=error.state))
         if run.failures_in_a_row >= limit:
             raise NumericalError(f"{where}: {run.failures_in_a_row} trial designs failed in a row "
                                  f"(optimizer.max_failures = {limit}); the last: {error}", diagnostic,
@@ -304,7 +379,7 @@ class Optimizer:
             e = self._evaluate(np.asarray(x))
             if grad.size:
                 grad[:] = e["df"] / run.scale
-            if self._converged(run.stage):
+            if self._converged():
                 raise nlopt.ForcedStop
             return float(e["f"] / run.scale)
 

@@ -6,8 +6,8 @@ import sys
 
 import numpy as np
 
-from tofsi.optimize import Optimizer
 from tofsi import quality
+from tofsi.optimize import Optimizer
 from tofsi.output import atomic_write, write_vtu
 from tofsi.plotting import plot_convergence, plot_design, region_outlines
 from tofsi.problem import Problem
@@ -90,8 +90,10 @@ def run(scene, args, ctx) -> dict:
 
     def fallback(iteration, fallbacks, step, error):
         if not ctx.quiet:
-            print(f"{iteration:5d} fallback {fallbacks}: a trial design failed ({str(error)[:160]}); back to "
-                  f"the last good design, move limit {step:.3g}", file=out, flush=True)
+            then = ("a bridging stage halfway from the previous stage first" if step is None else
+                    f"back to the last good design, move limit {step:.3g}")
+            print(f"{iteration:5d} fallback {fallbacks}: a trial design failed ({str(error)[:160]}); {then}",
+                  file=out, flush=True)
 
     optimizer = Optimizer(problem, ctx.output, on_iteration=line, on_picture=pictures, on_fallback=fallback)
     if args.resume:                                  # same scene and mesh, before writing

@@ -1,0 +1,235 @@
+"""When do the mesh mover, the stiffening and a mesh-quality constraint decide a two-way design?
+
+The large-deformation scene (``scenes/beam_in_channel_optimization_large.toml``:
+a finite-strain structure that the flow moves by more than a tenth of the
+channel) is optimized with every combination of
+
+* mover: spring analogy, linear elasticity (Jacobian-stiffened), Yeoh hyperelastic;
+* stiffening: none; two layers around the fixed solid (factors 2, 1.5); two
+  layers grown from the densities (the same factors, following the design);
+  per-layer factors tuned by ``tofsi tune`` for the mover (on the fixed
+  wall moved by the flow as far as the reference design moves: a proxy of
+  the design's motion, said plainly), grown from the densities;
+* the mesh-quality constraint ``design.min_skewness``: off, on.
+
+For each run: whether it finished, the fallbacks from failed trial designs,
+the smallest skewness over the two-way stages, the final design's compliance
+in its own model and re-evaluated by one common reference (finite strain,
+the Yeoh mover with density-grown layers, tight tolerances: the same design
+judged by the same physics), and the wall time. Beside them: the design
+made with the small-strain structure, re-evaluated at finite strain; and the
+design made one-way throughout, re-evaluated two-way. Writes
+``large_deformation.md`` (the table), ``large_deformation.json`` and
+``designs.png`` (every final design on its moved mesh) to the output folder:
+
+    python examples/compare_large_deformation.py [--output results/compare_large_deformation] [--jobs 2]
+
+``--mesh-size h`` runs the study on a uniform mesh of element size ``h`` [m]
+instead of the scene's (the docs' table says which). ``TOFSI_EXAMPLE_SMALL=1``
+runs a coarse, short version of two movers without and with density-grown
+layers (the test suite does this).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import math
+import multiprocessing
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+import tofsi
+from tofsi.coupled import continuation
+from tofsi.errors import NumericalError
+from tofsi.optimize import Optimizer
+from tofsi.output import write_json, write_text
+from tofsi.tuning import tune
+
+SCENE = Path(__file__).parent / "scenes" / "beam_in_channel_optimization_large.toml"
+SMALL = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.2", "optimizer.max_iter=8",
+         "design.beta=[1.0, 2.0, 4.0]", 'design.coupling=["one-way", "one-way", "two-way"]',
+         'design.structure_model=["linear", "linear", "neo-hookean"]', "design.stage_iterations=3",
+         "structure.youngs_modulus=1e6", "tune.max_solves=6"]     # stiff: coarse gray designs hold
+MOVERS = ("spring", "linear", "yeoh")
+STIFFENING = {"none": ["mover.layers=[]"],
+              "fixed-solid layers": ["mover.layers=[2.0, 1.5]", "mover.layers_from=solid"],
+              "density-grown layers": ["mover.layers=[2.0, 1.5]", "mover.layers_from=density"],
+              "tuned": None}                                # per mover, from tofsi tune
+QUALITY_BOUND = 0.5
+REFERENCE = ["structure.model=neo-hookean", "mover.name=yeoh", "mover.layers=[2.0, 1.5]",
+             "mover.layers_from=density", "coupled.tol=1e-11", "fluid.newton_tol=1e-12"]
+
+
+def small() -> list[str]:
+    return SMALL if os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0" else []
+
+
+SMALL_CASES = {"movers": ("spring", "yeoh"), "stiffening": ("none", "density-grown layers")}
+MESH: list[str] = []     # the study's mesh, when --mesh-size replaces the scene's
+
+
+def base() -> list[str]:
+    """The overrides every run of the study shares: the small mode's, then the mesh's."""
+    return small() + MESH
+
+
+def optimize(overrides: list[str], output: Path) -> dict:
+    """One optimization of the scene: its figures, the final design, the run's quality record."""
+    t0 = time.perf_counter()
+    scene = tofsi.load_scene(SCENE, base() + overrides)
+    problem = tofsi.Problem(scene)
+    optimizer = Optimizer(problem, output)
+    try:
+        result = optimizer.run()
+        finished, error = True, ""
+    except NumericalError as err:
+        finished, error, result = False, str(err).splitlines()[0], {}
+    history = optimizer.history
+    skew = [h.min_skewness for h in history if not math.isnan(h.min_skewness)]
+    last_good = output / "design.npy"            # written after every design that solved
+    gamma = np.load(last_good) if last_good.exists() else None
+    return {"finished": finished, "error": error, "fallbacks": optimizer.fallbacks,
+            "iterations": len(history), "min_skewness_over_run": min(skew) if skew else float("nan"),
+            "compliance": result.get("objective", float("nan")),
+            "max_displacement": result.get("max_displacement", float("nan")),
+            "final_min_skewness": result.get("min_skewness", float("nan")),
+            "wall_time_s": time.perf_counter() - t0, "design": None if gamma is None else gamma.tolist()}
+
+
+def reference_compliance(gamma, overrides=()) -> float:
+    """The compliance of design ``gamma`` judged by the common reference (finite strain, Yeoh,
+    density-grown layers, tight tolerances) at the schedule's last stage; NaN if it fails."""
+    scene = tofsi.load_scene(SCENE, base() + list(overrides) + REFERENCE)
+    problem = tofsi.Problem(scene)
+    problem.set_stage(continuation(scene, scene.design.n_stages - 1))
+    try:
+        state = problem.solve(np.asarray(gamma, dtype=float))
+    except NumericalError:
+        return float("nan")
+    return problem.objective.value(problem.model, state)
+
+
+def tuned_layers(mover: str, motion: float) -> list[float]:
+    """Per-layer stiffening factors tuned by ``tofsi tune`` for ``mover`` on the fixed wall moved
+    by the flow (``deformation.mode = "fsi"``) to ``motion`` [m]."""
+    scene = tofsi.load_scene(SCENE, base() + [f"mover.name={mover}", "geometry.design=[]",
+                                               "design.coupling=[]", "deformation.mode=fsi",
+                                               f"deformation.tip_displacement={motion:g}",
+                                               "tune.layers=4", "tune.max_solves=24"])
+    return [float(f) for f in tune(scene).layer_factors]
+
+
+def case(job) -> dict:
+    mover, stiffening, constraint, layers, output, mesh = job
+    MESH[:] = mesh                                  # a spawned worker starts from the module's empty list
+    overrides = [f"mover.name={mover}", *(STIFFENING[stiffening] or
+                                          [f"mover.layers={layers}", "mover.layers_from=density"])]
+    if constraint:
+        overrides.append(f"design.min_skewness={QUALITY_BOUND}")
+    row = {"mover": mover, "stiffening": stiffening, "constraint": constraint,
+           **optimize(overrides, output / f"{mover}-{stiffening.split()[0]}-{'q' if constraint else 'free'}")}
+    row["reference_compliance"] = (reference_compliance(row["design"]) if row["design"] is not None
+                                   else float("nan"))
+    return row
+
+
+def table(rows: list[dict], extra: dict) -> str:
+    lines = [("| mover | stiffening | quality constraint | finished | fallbacks | min skewness over the run | "
+             "compliance, own model [J/m] | compliance, reference [J/m] | largest displacement [m] | time [s] |"),
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['mover']} | {r['stiffening']} | {'on' if r['constraint'] else 'off'} | "
+                     f"{'yes' if r['finished'] else 'no: ' + r['error'][:80]} | {r['fallbacks']} | "
+                     f"{r['min_skewness_over_run']:.3f} | {r['compliance']:.4g} | {r['reference_compliance']:.4g} | "
+                     f"{r['max_displacement']:.3g} | {r['wall_time_s']:.0f} |")
+    lines += ["", "| design | own model [J/m] | re-evaluated [J/m] | by |", "|---|---|---|---|"]
+    lines += [f"| {name} | {e['own']:.4g} | {e['reference']:.4g} | {e['by']} |" for name, e in extra.items()]
+    return "\n".join(lines) + "\n"
+
+
+def pictures(rows: list[dict], path: Path) -> None:
+    """Every finished run's final density, side by side (movers across, the other choices down)."""
+    import matplotlib.pyplot as plt
+
+    from tofsi.plotting import save
+    scene = tofsi.load_scene(SCENE, base())
+    problem = tofsi.Problem(scene)
+    problem.set_stage(continuation(scene, scene.design.n_stages - 1))
+    mesh = problem.model.mesh
+    variants = sorted({(r["stiffening"], r["constraint"]) for r in rows})
+    fig, axes = plt.subplots(len(variants), len(MOVERS), figsize=(3.2 * len(MOVERS), 1.9 * len(variants)),
+                             squeeze=False, layout="constrained")
+    for r in rows:
+        ax = axes[variants.index((r["stiffening"], r["constraint"])), MOVERS.index(r["mover"])]
+        if r["design"] is not None:         # a failed run: its last design that solved
+            rho = problem.densities(np.asarray(r["design"]))
+            ax.tripcolor(mesh.points[:, 0], mesh.points[:, 1],
+                         np.vstack([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]]]),
+                         facecolors=np.concatenate([rho, rho]), cmap="Greys", vmin=0, vmax=1)
+        ax.set_title(f"{r['mover']}, {r['stiffening']}, q {'on' if r['constraint'] else 'off'}: "
+                     + f"{r['reference_compliance']:.3g} J/m" + ("" if r["finished"] else " (failed)"), fontsize=7)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    save(fig, path)
+
+
+def main(output: Path, jobs: int = 1, movers=MOVERS, stiffening=tuple(STIFFENING), mesh_size=None) -> dict:
+    output.mkdir(parents=True, exist_ok=True)
+    if mesh_size is not None:
+        MESH[:] = [f"mesh.h_min={mesh_size:g}", f"mesh.h_max={mesh_size:g}"]
+        print(f"the study's mesh: uniform, element size {mesh_size:g} m")
+    print("reference run: yeoh, density-grown layers, no constraint")
+    reference = optimize(["mover.name=yeoh"], output / "reference")
+    motion = reference["max_displacement"] if reference["finished"] else 0.1
+    layers = {m: tuned_layers(m, motion) for m in movers} if "tuned" in stiffening else {}
+    for m, f in layers.items():
+        print(f"tuned layers for {m}: {[round(v, 3) for v in f]}")
+    jobs_list = [(m, s, c, layers.get(m), output, list(MESH))
+                 for m, s, c in itertools.product(movers, stiffening, (False, True))]
+    with multiprocessing.get_context("spawn").Pool(jobs) as pool:
+        rows = []
+        for row in pool.imap(case, jobs_list):
+            print(f"  {row['mover']:7s} {row['stiffening']:22s} q {'on ' if row['constraint'] else 'off'}: "
+                  f"{'finished' if row['finished'] else 'FAILED'}, fallbacks {row['fallbacks']}, min skewness "
+                  f"{row['min_skewness_over_run']:.3f}, reference compliance {row['reference_compliance']:.4g}, "
+                  f"{row['wall_time_s']:.0f} s", flush=True)
+            rows.append(row)
+    extra = {}
+    small_strain = optimize(["mover.name=yeoh", "structure.model=linear"], output / "small-strain")
+    if small_strain["design"] is not None:
+        extra["small-strain structure"] = {"own": small_strain["compliance"], "by": "finite strain",
+                                           "reference": reference_compliance(small_strain["design"])}
+    one_way = optimize(["mover.name=yeoh", "design.coupling=[\"one-way\"]"], output / "one-way")
+    if one_way["design"] is not None:
+        extra["one-way throughout"] = {"own": one_way["compliance"], "by": "two-way",
+                                       "reference": reference_compliance(one_way["design"])}
+    mesh = MESH[0].split("=")[1] + " m (--mesh-size)" if MESH else "the scene's"
+    text = f"Mesh: {mesh}; small mode: {bool(small())}.\n\n" + table(rows, extra)
+    write_text(output / "large_deformation.md", text)
+    write_json(output / "large_deformation.json", {"rows": rows, "extra": extra, "tuned_layers": layers,
+                                                   "reference": reference})
+    pictures(rows, output / "designs.png")
+    print(text)
+    return {"rows": rows, "extra": extra}
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--output", type=Path, default=Path("results/compare_large_deformation"))
+    parser.add_argument("--jobs", type=int, default=1, help="optimizations run at once")
+    parser.add_argument("--movers", nargs="+", default=list(MOVERS), choices=MOVERS)
+    parser.add_argument("--stiffening", nargs="+", default=list(STIFFENING), choices=list(STIFFENING))
+    parser.add_argument("--mesh-size", type=float, default=None,
+                        help="uniform element size [m] of the study (default: the scene's mesh)")
+    args = parser.parse_args()
+    if small():
+        print("small mode (TOFSI_EXAMPLE_SMALL): " + ", ".join(SMALL) + f"; movers {SMALL_CASES['movers']}, "
+              f"stiffening {SMALL_CASES['stiffening']} -- Young's modulus raised from 1.5 kPa to 1 MPa so the "
+              "coarse gray designs hold")
+        args.movers, args.stiffening = SMALL_CASES["movers"], SMALL_CASES["stiffening"]
+    main(args.output, args.jobs, tuple(args.movers), tuple(args.stiffening), args.mesh_size)
