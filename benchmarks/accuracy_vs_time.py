@@ -22,12 +22,9 @@ from __future__ import annotations
 
 import argparse
 import platform
-import sys
 import time
 from pathlib import Path
 
-# This folder holds ``movers.py`` and ``adjoint.py``, named like the packages.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 import numpy as np  # noqa: E402
 
@@ -117,7 +114,7 @@ def flow_study(quick: bool) -> list[dict]:
     for model in ("stokes", "navier-stokes"):
         results = []
         for h in hs:
-            s = dataclasses.replace(scene, mesh=dataclasses.replace(scene.mesh, h_min=h, h_max=4 * h))
+            s = scene.with_tables(mesh=dataclasses.replace(scene.mesh, h_min=h, h_max=4 * h))
             mesh = build_mesh(s.geometry, s.mesh)
             rho = (mesh.region == SOLID).astype(float)
             flow = Flow(mesh, dataclasses.replace(s.fluid, alpha_max=1e6), stokes=model == "stokes")

@@ -19,14 +19,10 @@ import json
 import platform
 import pstats
 import resource
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-# This folder holds ``movers.py`` and ``adjoint.py``, named like the packages; running a
-# script puts its folder first on sys.path, which would shadow them.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "beam_in_channel_optimization.toml"
 

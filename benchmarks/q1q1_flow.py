@@ -22,10 +22,9 @@ tangential velocity (strongly), walls elsewhere. Velocity and pressure live on t
 from __future__ import annotations
 
 import argparse
-import sys
+import dataclasses
 from pathlib import Path
 
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
@@ -126,7 +125,7 @@ def main() -> None:
     p = tofsi.Problem(scene)
     stokes = tofsi.Problem(tofsi.load_scene(args.scene, args.set + ["effects.fluid=stokes"]))
     for problem in (p, stokes):                      # the last continuation step's q
-        problem.set_stage(q=scene.design.brinkman_q[-1])
+        problem.set_stage(dataclasses.replace(problem.params, brinkman_q=scene.design.brinkman_q[-1]))
     mesh = p.model.mesh
     f = scene.fluid
     inflow = [(a, b, U) for a, b, U in f.left.inflow]

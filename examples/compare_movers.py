@@ -14,7 +14,6 @@ on two cores:
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from optimize_fsi import main as optimize_fsi

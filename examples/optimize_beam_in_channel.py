@@ -29,7 +29,7 @@ from tofsi.commands.context import RunContext
 from tofsi.commands.optimize import Pictures
 from tofsi.errors import InputError
 from tofsi.optimize import Optimizer
-from tofsi.plotting import OBJECTIVE_LABELS, plot_convergence
+from tofsi.plotting import plot_convergence
 from tofsi.provenance import run_record
 from tofsi.run_folder import RunFolder
 
@@ -63,7 +63,7 @@ def main(output: Path, overrides=(), overwrite: bool = False) -> dict:
     optimizer = Optimizer(problem, output, on_iteration=report, on_picture=Pictures(ctx, problem))
     result = optimizer.run()
     plot_convergence(Path(output) / "convergence.png", [h.__dict__ for h in optimizer.history],
-                     title="beam in a channel", objective_label=OBJECTIVE_LABELS["compliance"])
+                     title="beam in a channel", objective_label=problem.objective.axis_label())
     ctx.extra["stop_reason"] = result["stop_reason"]
     ctx.finish(0)
     print(f"final compliance {result['objective']:.5g} J/m (from {f:.4g}), volume {result['volume']:.4f},"

@@ -27,7 +27,7 @@ from tofsi.commands.context import RunContext
 from tofsi.commands.optimize import Pictures
 from tofsi.errors import InputError
 from tofsi.optimize import Optimizer
-from tofsi.plotting import OBJECTIVE_LABELS, plot_convergence
+from tofsi.plotting import plot_convergence
 from tofsi.provenance import run_record
 from tofsi.run_folder import RunFolder
 
@@ -62,7 +62,7 @@ def main(output: Path, overrides=(), overwrite: bool = False) -> dict:
     result = optimizer.run()
     history = [h.__dict__ for h in optimizer.history]
     plot_convergence(Path(output) / "convergence.png", history, title=f"two-way, {scene.mover.name} mover",
-                     objective_label=OBJECTIVE_LABELS["compliance"])
+                     objective_label=problem.objective.axis_label())
     skew = [h["min_skewness"] for h in history if not math.isnan(h["min_skewness"])]
     result["min_skewness_over_run"] = min(skew) if skew else float("nan")
     ctx.extra["stop_reason"] = result["stop_reason"]

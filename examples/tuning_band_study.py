@@ -11,7 +11,7 @@ that page, e.g. ``docs/mesh_motion_study.md``):
   counted), (c) :func:`tofsi.tuning.tune` given a tenth of the grid's mover solves
   (forward moves and adjoint solves together), (d) the paper's best column (Table 3);
 * ``band`` -- full domain against the automatic band (:mod:`tofsi.band`) and a
-  narrower one: the 8 degree foil rotation of ``benchmarks/movers.py`` at its mesh
+  narrower one: the 8 degree foil rotation of ``benchmarks/mover_speed.py`` at its mesh
   sizes (each mover: minimum skewness, minimum / maximum area change, time of the
   mesh motion, setup of the band included), and the twelve problem x mover cases;
 * ``reach`` -- why no band meets both the quality and the time target on that
@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -58,15 +57,14 @@ from tofsi.physics.mesh_motion import MeshMotion
 from tofsi.study import best
 from tofsi.tuning import tune
 
-sys.path.insert(0, str(Path(__file__).parent))
-from mesh_motion_study import MESHES, MOVERS, PROBLEMS, SCENES, Study, two_layer_grid  # noqa: E402
+from mesh_motion_study import MESHES, MOVERS, PROBLEMS, SCENES, Study, two_layer_grid  # its sibling script
 
 PAPER_BEST = {  # Abdelhamid & Czekanski, Table 3 ("Summary of all minimum skewness results"):
     "spring": [0.493, 0.506, 0.510, 0.527],    # two layers
     "linear": [0.377, 0.470, 0.446, 0.418],    # three layers
     "yeoh": [0.512, 0.613, 0.683, 0.691],      # two layers
 }
-REFINE = [2.2, 3.8, 6.9, 12.0]               # benchmarks/movers.py: about 1e4 .. 2.4e5 nodes
+REFINE = [2.2, 3.8, 6.9, 12.0]               # benchmarks/mover_speed.py: about 1e4 .. 2.4e5 nodes
 MULTIPLES = [8.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0]   # reach study: band reach / largest displacement
 SMALL = os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0"
 if SMALL:
@@ -162,7 +160,7 @@ def tuning_table(rows: list[dict], study: Study, grid_dir: Path | None) -> str:
 
 # ---- band ------------------------------------------------------------------------------------
 def benchmark_overrides(refine: float, mover: str) -> list[str]:
-    """The case of benchmarks/movers.py: the foil rotated by 8 degrees, graded mesh refined."""
+    """The case of benchmarks/mover_speed.py: the foil rotated by 8 degrees, graded mesh refined."""
     return [f"mesh.h_min={0.0125 / refine}", f"mesh.h_max={0.05 / refine}", "deformation.mode=rotation",
             "deformation.rotation_deg=8", f"mover.name={mover}"] + (["mover.linear.chi=1"] if mover == "linear" else [])
 
@@ -243,7 +241,7 @@ def band_tables(rows: list[dict]) -> str:
     head = ["mover", "band", "min skew full", "min skew band", "within 0.01", "area change full (min / max)",
             "area change band", "band quads / full", "CPU full [s]", "CPU band [s]", "CPU ratio",
             "wall ratio"]
-    return ("Foil rotated by 8 degrees (benchmarks/movers.py), graded meshes refined:\n\n"
+    return ("Foil rotated by 8 degrees (benchmarks/mover_speed.py), graded meshes refined:\n\n"
             + markdown_table(["nodes", *head], bench)
             + "\nThe four problems, graded meshes (scene defaults):\n\n" + markdown_table(["problem", *head], problems))
 

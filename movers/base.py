@@ -77,6 +77,8 @@ class MotionProblem:
     accept_inverted : return a mesh with inverted quads (reported in the quality
         records) instead of raising; for studies of the map itself, e.g. tuning
         (a mover whose equations break down at inversion still raises)
+    linear_algebra : the model's :class:`tofsi.linalg.LinearAlgebra` (direct backend and
+        threads), None for the process default
     """
 
     points: np.ndarray
@@ -86,6 +88,7 @@ class MotionProblem:
     grid: np.ndarray | None = None
     blend: np.ndarray | None = None
     accept_inverted: bool = False
+    linear_algebra: object = None
 
     def __post_init__(self):
         n = self.points.shape[0]
@@ -129,12 +132,14 @@ class MotionProblem:
 
     @classmethod
     def from_mesh(cls, mesh, moving: np.ndarray, fixed_nodes: np.ndarray,
-                  stiffening: np.ndarray | None = None, blend: np.ndarray | None = None) -> "MotionProblem":
+                  stiffening: np.ndarray | None = None, blend: np.ndarray | None = None,
+                  linear_algebra=None) -> "MotionProblem":
         """The problem for the quads ``mesh.quads[moving]`` of a structured mesh."""
         i = np.tile(np.arange(mesh.nx + 1), mesh.ny + 1)
         j = np.repeat(np.arange(mesh.ny + 1), mesh.nx + 1)
         return cls(points=mesh.points, quads=mesh.quads[moving], fixed_nodes=fixed_nodes,
-                   stiffening=stiffening, grid=np.column_stack([2 * i, 2 * j]), blend=blend)
+                   stiffening=stiffening, grid=np.column_stack([2 * i, 2 * j]), blend=blend,
+                   linear_algebra=linear_algebra)
 
     def with_data(self, stiffening=None, blend=None) -> "MotionProblem":
         """The same mesh with other stiffening factors or blend (the cached operators are kept)."""
@@ -220,6 +225,22 @@ class Mover(ABC):
     def path_dependent(self) -> bool:
         """True when the map has no residual form (increments on the updated mesh)."""
         return False
+
+    @property
+    def inversion_hint(self) -> str:
+        """What to try when a move inverts elements (for the command line's message): more
+        increments for a mover that applies the motion in increments."""
+        n = getattr(self.params, "increments", None)
+        if n is None or not self.path_dependent:
+            return ""
+        return (f"the {self.name} mover inverted elements with mover.{self.name}.increments = {n}; "
+                f"try more increments (e.g. --set mover.{self.name}.increments={max(2 * n, 10)})")
+
+    @property
+    def kinks(self) -> str:
+        """Why the map is not smooth in its inputs (a discrete choice that switches as they
+        change, which a gradient holds fixed); ``""`` for a smooth map."""
+        return ""
 
     # ---- the residual form, composed from the element kernel ------------------------
     def element_residual(self, problem: MotionProblem, x: np.ndarray, factors, tangent: bool = True):
@@ -326,7 +347,8 @@ class Mover(ABC):
         tol = getattr(self.params, "linear_tol", 1e-10)
         symmetric = problem.blend is None            # the blended form is not symmetric
         return RecyclingSolver(lambda K: make_solver(K, kind, near_null=near_null, perm=perm, tol=tol,
-                                                     symmetric=symmetric), rtol=tol)
+                                                     symmetric=symmetric,
+                                                     linear_algebra=problem.linear_algebra), rtol=tol)
 
     @staticmethod
     def _start(problem: MotionProblem, prescribed: np.ndarray):

@@ -57,6 +57,13 @@ class SpringMover(Mover):
         """Several increments, or selective diagonals (chosen from the motion itself)."""
         return self.params.increments > 1 or self.params.diagonals == "selective"
 
+    @property
+    def kinks(self) -> str:
+        if self.params.diagonals != "selective":
+            return ""
+        return ("selective diagonals switch as the motion or the stiffening changes and a gradient "
+                "holds them fixed; mover.spring.diagonals = 'both' gives a smooth map")
+
     def element_residual(self, problem: MotionProblem, x: np.ndarray, factors, tangent: bool = True):
         """One increment with fixed diagonals is linear: ``R_e = f_e K0_e(X) x_e``."""
         if self.path_dependent:

@@ -101,7 +101,7 @@ def test_dropping_a_coupling_block_breaks_the_taylor_test(block, monkeypatch):
                         if other == "x" else original(self, other))
     t, err, _ = check_total_derivative(P, gamma, d)
     assert t.min_rate < 1.3, t                                  # first order: a term is missing
-    assert not (t.min_rate > 1.9)                               # the guard of the tests above fails
+    assert err > 1e-4, err                                      # and the central difference sees it
 
 
 def test_adjoint_refuses_an_unconverged_state():
@@ -136,11 +136,11 @@ def test_filter_projection_and_design_map_transposes():
     lhs, rhs = _dot(lambda a: proj.derivative(x) * a, lambda b: proj.transpose(x, b), 60, 60)
     assert lhs == pytest.approx(rhs, rel=1e-13)
     P = problem()
-    M = DesignMap(P.model.mesh, 0.2, 4.0)
+    M = DesignMap(P.model.mesh, 0.2)
     g = rng.uniform(0, 1, M.size)
     h = 1e-6
-    Jv = lambda a: (M.forward(g + h * a) - M.forward(g - h * a)) / (2 * h)
-    lhs, rhs = _dot(Jv, lambda b: M.transpose(g, b), M.size, P.model.mesh.n_elements)
+    Jv = lambda a: (M.forward(g + h * a, 4.0) - M.forward(g - h * a, 4.0)) / (2 * h)
+    lhs, rhs = _dot(Jv, lambda b: M.transpose(g, 4.0, b), M.size, P.model.mesh.n_elements)
     assert lhs == pytest.approx(rhs, rel=1e-8)
 
 

@@ -3,6 +3,8 @@
 * ``movers`` and ``adjoint`` import only tofsi's foundation (finite elements, quality,
   errors, linear algebra, configuration, the block protocol and the iteration helpers);
 * the foundation imports nothing above it;
+* the scene's configuration (settings, scene tables) imports no physics, objective or model;
+* no module outside ``movers`` compares anything with a mover's name;
 * no library module reads or writes an underscore attribute of another object.
 """
 
@@ -13,7 +15,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 FOUNDATION = ("tofsi.fem", "tofsi.quality", "tofsi.errors", "tofsi.linalg", "tofsi.config",
-              "tofsi.blocks", "tofsi.iteration")
+              "tofsi.blocks", "tofsi.iteration", "tofsi.registry", "tofsi.kept")
 
 
 def modules(*packages):
@@ -77,4 +79,29 @@ def test_no_library_module_touches_another_objects_underscore_attribute():
                   and node.args[1].value.startswith("_") and not node.args[1].value.startswith("__")
                   and not own(node.args[0])):
                 hits.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.func.id}({node.args[1].value!r})")
+    assert not hits, hits
+
+
+def test_the_configuration_imports_no_physics_objective_or_model():
+    below = ("tofsi.physics", "tofsi.objectives", "tofsi.fields", "tofsi.coupled", "tofsi.problem")
+    bad = set()
+    for name in ("settings", "scene_tables", "config"):
+        path = ROOT / "tofsi" / f"{name}.py"
+        bad |= {f"tofsi/{name}.py: {m}" for m in tofsi_imports(ast.parse(path.read_text()))
+                if any(m == b or m.startswith(b + ".") for b in below)}
+    assert not bad, sorted(bad)
+
+
+def test_no_mover_name_outside_the_movers_package():
+    """A mover's name in a comparison (``scene.mover.name == "spring"``) is a second list of
+    movers: what a mover can do belongs to the mover (``Mover.kinks``, ``inversion_hint``)."""
+    import movers
+    names = set(movers.available())
+    hits = []
+    for path, tree in modules("tofsi", "adjoint"):
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Compare):
+                for side in (node.left, *node.comparators):
+                    if isinstance(side, ast.Constant) and side.value in names:
+                        hits.append(f"{path.relative_to(ROOT)}:{node.lineno}: {side.value!r}")
     assert not hits, hits

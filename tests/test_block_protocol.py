@@ -17,13 +17,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-import tofsi
 from adjoint import Adjoint
 from adjoint.checks import check_blocks, taylor_test
 from tofsi.blocks import FieldBlock, Linearization
 from tofsi.coupled import CoupledModel
 from tofsi.linalg import DirectSolver
-from tofsi.objectives import Compliance
+from tofsi.objectives.compliance import Compliance
 
 from conftest import load
 

@@ -13,7 +13,7 @@ import pytest
 
 import tofsi
 from tofsi.cli import main
-from tofsi.objectives import StrainDissipation
+from tofsi.objectives.dissipation_strain import StrainDissipation
 from tofsi.optimize import Optimizer
 
 from conftest import load, scene_path

@@ -70,23 +70,22 @@ def test_interface_is_exactly_the_boundary_between_solid_and_fluid(name):
 
 
 def test_layers_grow_one_node_ring_at_a_time():
+    """Every layer k = 1..4 against a slow breadth-first search over the elements: layer 1 is
+    the fluid quads touching an interface node, layer k + 1 the fluid quads not yet counted that
+    share a node with layer k; quads beyond the counted layers, and the solid, are 0."""
     scene = load("beam_in_channel")
     mesh = build_mesh(scene.geometry, scene.mesh)
-    layer = element_layers(mesh.incidence, mesh.interface_nodes, mesh.region != SOLID, n_layers=4)
-    q = mesh.quads
-    iface = set(mesh.interface_nodes)
-    assert np.all(layer[mesh.region == SOLID] == 0)
-    for e in np.flatnonzero(layer == 1):
-        assert iface & set(q[e])
-    for k in (1, 2, 3):
-        nodes_k = set(q[layer == k].ravel())
-        for e in np.flatnonzero(layer == k + 1):
-            assert nodes_k & set(q[e])
-            assert not iface & set(q[e])
-    # every fluid element that touches a layer-k node, and is in no earlier layer, is in layer k+1
-    nodes_1 = set(q[layer == 1].ravel())
-    for e in np.flatnonzero((mesh.region != SOLID) & (layer == 0)):
-        assert not nodes_1 & set(q[e]) or layer[e] != 0
+    n_layers = 4
+    layer = element_layers(mesh.incidence, mesh.interface_nodes, mesh.region != SOLID, n_layers=n_layers)
+    fluid = [e for e in range(mesh.n_elements) if mesh.region[e] != SOLID]
+    expected = np.zeros(mesh.n_elements, dtype=int)
+    front = set(mesh.interface_nodes.tolist())
+    for k in range(1, n_layers + 1):
+        ring = [e for e in fluid if expected[e] == 0 and front & set(mesh.quads[e].tolist())]
+        expected[ring] = k
+        front = {int(i) for e in ring for i in mesh.quads[e]}
+    assert all((expected == k).any() for k in range(1, n_layers + 1))
+    np.testing.assert_array_equal(layer, expected)
 
 
 def test_stiffening_field_maps_layers_to_factors():

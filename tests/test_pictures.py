@@ -7,6 +7,7 @@ import pytest
 
 import tofsi
 import tofsi.plotting as plotting
+from tofsi.registry import OBJECTIVES
 from tofsi.channel import build_mesh
 from tofsi.commands.context import RunContext
 from tofsi.commands.optimize import Pictures
@@ -102,7 +103,7 @@ def test_convergence_has_units_and_a_legend_for_its_stage_lines(figures):
     history = [{"iteration": k, "objective": 50.0 * 0.7 ** k, "constraint": -0.1 / (k + 1),
                 "stage": k // 4, "beta": 2.0 ** (k // 4)} for k in range(14)]
     plotting.plot_convergence("c.png", history, title="beam_in_channel_optimization: compliance",
-                              objective_label=plotting.OBJECTIVE_LABELS["compliance"])
+                              objective_label=OBJECTIVES.get("compliance").axis_label())
     fig = figures[0]
     check_layout(fig)
     legend = [t.get_text() for lg in fig.legends for t in lg.get_texts()]
@@ -152,7 +153,7 @@ def test_the_design_vtu_carries_design_variables_filtered_densities_and_sensitiv
     w = np.maximum(r - d, 0.0)
     filtered = w @ gamma / w.sum(axis=1)
     np.testing.assert_allclose(field["filtered_density"][design], filtered, rtol=1e-12)
-    b, e = problem.map.projection.beta, scene.design.eta
+    b, e = problem.params.beta, scene.design.eta
     projected = (np.tanh(b * e) + np.tanh(b * (filtered - e))) / (np.tanh(b * e) + np.tanh(b * (1 - e)))
     np.testing.assert_allclose(field["density"][design], projected, rtol=1e-12)
     np.testing.assert_allclose(field["sensitivity"][design], problem.evaluate(gamma)[1], rtol=1e-12)

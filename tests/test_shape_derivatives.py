@@ -22,7 +22,8 @@ from tofsi.blocks import Continuation
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.complex_step import COMPLEX_STEP, corner_derivatives
 from tofsi.mesh import StructuredQuadMesh
-from tofsi.objectives import Compliance, Dissipation
+from tofsi.objectives.compliance import Compliance
+from tofsi.objectives.dissipation import Dissipation
 from tofsi.physics.fluid_kernel import brinkman_partial, fluid_element
 from tofsi.physics.fluid_load import load_operator
 from tofsi.physics.fluid_shape import dissipation_shape, fluid_shape, mass_shape, stress_load_shape

@@ -40,7 +40,7 @@ def test_environment_overrides_the_scene_backend(monkeypatch):
     monkeypatch.setenv("TOFSI_LINEAR_SOLVER", "auto")
     try:
         configure(SolverSettings(linear_solver="superlu"))
-        assert backends.default() == "auto"
+        assert backends.default() == backends.available()[0]          # auto: the fastest installed
         monkeypatch.setenv("TOFSI_LINEAR_SOLVER", "nonsense")
         with pytest.raises(Exception, match="solver.linear_solver"):
             configure(SolverSettings())
@@ -48,3 +48,36 @@ def test_environment_overrides_the_scene_backend(monkeypatch):
         monkeypatch.delenv("TOFSI_LINEAR_SOLVER")
         configure(SolverSettings())
     assert backends.default() == "superlu"
+
+
+def test_two_models_with_different_solver_tables_do_not_interfere(monkeypatch):
+    """Building a model changes nothing process-wide: each solves with its own BLAS threads and
+    backend, whichever was built last."""
+    import tofsi
+    from tofsi.coupled import CoupledModel
+    monkeypatch.delenv("TOFSI_BLAS_THREADS", raising=False)
+    monkeypatch.delenv("TOFSI_LINEAR_SOLVER", raising=False)
+    base = ["mesh.h_min=0.1", "mesh.h_max=0.1"]
+    path = "examples/scenes/beam_in_channel_optimization.toml"
+    set_blas_threads(1)
+    default = backends.default()
+    a = CoupledModel(tofsi.load_scene(path, base + ["solver.blas_threads=1"]))
+    b = CoupledModel(tofsi.load_scene(path, base + ["solver.blas_threads=2", "solver.threads=2",
+                                                    "solver.linear_solver=auto"]))
+    assert backends.default() == default and openblas_threads() == {1}      # nothing global moved
+    assert a.linear_algebra.blas_threads == 1 and b.linear_algebra.blas_threads == 2
+    seen = {}
+    for name, model in (("a", a), ("b", b), ("a again", a)):
+        system_for = model.system_for
+
+        def spy(params, system_for=system_for, name=name):
+            seen[name] = openblas_threads()
+            return system_for(params)
+        monkeypatch.setattr(model, "system_for", spy)
+        state = model.solve(model.densities())
+        assert state.u is not None
+    assert seen == {"a": {1}, "b": {2}, "a again": {1}} and openblas_threads() == {1}
+    assert a.flow.linear_algebra.backend == "superlu" == a.structure.linear_algebra.backend
+    assert b.flow.linear_algebra.backend == backends.available()[0]
+    factor = a.flow.factorize(a.flow.jacobian(a.flow.initial())[0])
+    assert factor.backend.name == "superlu"

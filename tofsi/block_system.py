@@ -45,8 +45,8 @@ import scipy.sparse as sp
 from tofsi.blocks import Continuation, FieldBlock, Linearization, State
 from tofsi.errors import InputError, NumericalError
 from tofsi.iteration import aitken, backtracking, forcing_term
-from tofsi.linalg import BlockGaussSeidel, DirectSolver, RecyclingSolver, nested_dissection
-from tofsi.linalg.backends import canonical_csr
+from tofsi.linalg import BlockGaussSeidel, LinearAlgebra, RecyclingSolver, nested_dissection
+from tofsi.linalg.backends import canonical_csr, resolve
 
 log = logging.getLogger(__name__)
 
@@ -83,11 +83,16 @@ class CoupledLinearization:
 
 
 class BlockSystem:
-    """Field blocks in a fixed order, their dependency components and the coupled solve."""
+    """Field blocks in a fixed order, their dependency components and the coupled solve.
 
-    def __init__(self, blocks, settings: CouplingSettings | None = None):
+    linear_algebra : the model's :class:`~tofsi.linalg.LinearAlgebra` for the monolithic
+    Newton's factorizations (default: the process's backend)."""
+
+    def __init__(self, blocks, settings: CouplingSettings | None = None,
+                 linear_algebra: LinearAlgebra | None = None):
         self.blocks = tuple(blocks)
         self.settings = settings or CouplingSettings()
+        self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.names = tuple(b.name for b in self.blocks)
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"field names must be unique: {self.names}")
@@ -155,7 +160,7 @@ class BlockSystem:
 
     def with_blocks(self, *extra: FieldBlock) -> "BlockSystem":
         """The same system with more blocks."""
-        return BlockSystem(self.blocks + tuple(extra), self.settings)
+        return BlockSystem(self.blocks + tuple(extra), self.settings, self.linear_algebra)
 
     def split(self, z: np.ndarray, names=None) -> dict[str, np.ndarray]:
         """A stacked vector (in the order of ``names``) as fields."""
@@ -204,12 +209,13 @@ class BlockSystem:
         later iterates and the adjoint while it stays cheap; ``direct``, the LU of the whole
         Jacobian, whose factors precondition GMRES for the later iterates and the adjoint."""
         kind = kind or self.settings.linear_solver
+        direct = self.linear_algebra.direct
         if kind == "direct":
             perm = self.ordering(comp)
-            return RecyclingSolver(lambda A: DirectSolver(A, perm=perm))
+            return RecyclingSolver(lambda A: direct(A, perm=perm))
         sizes = [self.by_name[n].size for n in comp]
         orderings = [self.ordering((n,)) for n in comp]
-        return RecyclingSolver(lambda A: BlockGaussSeidel(A, sizes, orderings))
+        return RecyclingSolver(lambda A: BlockGaussSeidel(A, sizes, orderings, direct=direct))
 
     # ---- forward solve ------------------------------------------------------------------
     def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,

@@ -1,19 +1,21 @@
 """The coupled fluid-structure-mesh problem: only the fields a scene's effects ask for.
 
-The scene's effects decide which field blocks (:mod:`tofsi.physics.fields`)
-exist: no fluid -> no ``w``; no structure -> no ``u``; one-way coupling or no
-mesh motion -> no ``x`` (the flow sees the reference mesh and the mover is
-never called). The blocks go into a :class:`~tofsi.block_system.BlockSystem`,
-which solves them in dependency order -- one-way: the flow, then the
-structure; two-way: the cycle flow -> structure -> mesh -> flow, partitioned
-(Aitken-relaxed on ``u``) or by monolithic Newton on
+The fields are the entries of :data:`tofsi.registry.FIELDS` (:mod:`tofsi.fields`);
+a scene's effects decide which are active -- no fluid -> no ``w``; no structure
+-> no ``u``; one-way coupling or no mesh motion -> no ``x`` (the flow sees the
+reference mesh and the mover is never called). Their blocks go into a
+:class:`~tofsi.block_system.BlockSystem`, which solves them in dependency
+order -- one-way: the flow, then the structure; two-way: the cycle flow ->
+structure -> mesh -> flow, partitioned (Aitken-relaxed on ``u``) or by
+monolithic Newton on
 
       | S_u  S_x  S_w |
       | D_u  D_x   0  |
       |  0   F_x  F_w |
 
 (see ``docs/design.md``). Continuation parameters are inputs of every solve
-(:func:`continuation`).
+(:func:`continuation`). The model owns its linear algebra (the ``[solver]``
+table: backend and threads): building a model changes nothing process-wide.
 """
 
 from __future__ import annotations
@@ -26,13 +28,10 @@ from tofsi.block_system import BlockSystem, CouplingSettings
 from tofsi.blocks import Continuation, State
 from tofsi.channel import build_mesh
 from tofsi.errors import InputError
+from tofsi.fields import fluid_force
+from tofsi.linalg import LinearAlgebra
 from tofsi.mesh import DESIGN, SOLID
-from tofsi.physics.fields import FlowField, MotionField, StructureField
-from tofsi.physics.flow import Flow
-from tofsi.physics.fluid_load import FluidForce
-from tofsi.physics.mesh_motion import MeshMotion
-from tofsi.physics.structure import Structure
-from tofsi.threads import configure as configure_linear_algebra
+from tofsi.registry import FIELDS
 
 __all__ = ["CoupledModel", "State", "continuation"]
 
@@ -53,41 +52,45 @@ def continuation(scene, stage: int = 0) -> Continuation:
 
 
 class CoupledModel:
-    """Fields, blocks and the coupled solve of a scene (with its design densities)."""
+    """Fields, blocks and the coupled solve of a scene (with its design densities).
+
+    fields : the active :class:`~tofsi.fields.Field` entries, in dependency order;
+    physics : their physics objects by field name (``model.flow``, ``model.structure``
+    and ``model.motion`` name the built-in ones, None when absent).
+    """
 
     def __init__(self, scene, mesh=None):
         self.scene = scene
-        configure_linear_algebra(scene.solver)             # backend and threads ([solver])
+        self.linear_algebra = LinearAlgebra.from_settings(scene.solver)
         self.mesh = build_mesh(scene.geometry, scene.mesh) if mesh is None else mesh
-        e = scene.effects
-        self.flow = None if e.fluid == "none" else Flow(self.mesh, scene.fluid, stokes=e.fluid == "stokes")
-        self.structure = None
-        if e.structure != "none":
-            if self.flow is None:
-                raise InputError("effects.structure", e.structure,
-                                 "the structure is loaded by the flow; set effects.fluid too")
-            self.structure = Structure(self.mesh, scene.structure, self.flow)
-        has_solid = bool(np.isin(self.mesh.region, (SOLID, DESIGN)).any())
-        self.force = (self.structure.force if self.structure is not None else
-                      FluidForce(self.flow, scene.structure.load) if self.flow is not None and has_solid else None)
-        self.two_way = (e.coupling == "two-way" and e.mesh_motion != "none"
-                        and self.structure is not None)
-        self.motion = MeshMotion(self.mesh, scene) if self.two_way else None
-        blocks = []
-        if self.flow is not None:
-            blocks.append(FlowField(self.flow, moving_mesh=self.two_way))
-        if self.structure is not None:
-            blocks.append(StructureField(self.structure, moving_mesh=self.two_way))
-        if self.motion is not None:
-            blocks.append(MotionField(self.motion))
+        self.fields = [f for f in FIELDS if f.active(scene, "solve")]
+        self.physics: dict = {}
+        for field in self.fields:                       # later fields may use earlier physics
+            self.physics[field.name] = field.build(self)
+        self.force = fluid_force(self)
+        self.two_way = "x" in self.physics
         c = scene.coupled
         settings = CouplingSettings(c.method, c.tol, c.max_iter, c.relaxation, relax="u",
                                     quasi_newton=c.quasi_newton, linear_solver=c.linear_solver)
-        self.system = BlockSystem(blocks, settings)
-        self.one_way_system = self.system                  # a two-way problem's one-way stages
-        if self.two_way:
-            self.one_way_system = BlockSystem([FlowField(self.flow), StructureField(self.structure)], settings)
+        self.system = self._system(settings, self.two_way)
+        self.one_way_system = self._system(settings, False) if self.two_way else self.system
         self.params = continuation(scene)
+
+    def _system(self, settings: CouplingSettings, two_way: bool) -> BlockSystem:
+        blocks = [field.block(self, two_way) for field in self.fields]
+        return BlockSystem([b for b in blocks if b is not None], settings, self.linear_algebra)
+
+    @property
+    def flow(self):
+        return self.physics.get("w")
+
+    @property
+    def structure(self):
+        return self.physics.get("u")
+
+    @property
+    def motion(self):
+        return self.physics.get("x")
 
     # ---- densities -----------------------------------------------------------------
     @property
@@ -115,21 +118,16 @@ class CoupledModel:
         if self.flow is None:
             raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow")
         params = self.params if params is None else params
-        state = self.system_for(params).solve(rho, params, guess, progress)
+        with self.linear_algebra.blas():
+            state = self.system_for(params).solve(rho, params, guess, progress)
         state.reports["wall_time_s"] = time.perf_counter() - t0
         return state
 
     # ---- figures --------------------------------------------------------------------------
     def figures(self, state: State) -> dict:
-        """Flow and structure figures of a state: pressure drop, dissipation, drag and lift (the
-        resultant of the fluid load on the solid, with or without the structure effect),
-        compliance, largest displacement."""
+        """Every active field's figures of a state (flow: pressure drop, dissipation, drag and
+        lift; structure: compliance, largest displacement; moved mesh: its quality)."""
         out = {}
-        X = state.mesh_displacement
-        if self.flow is not None and state.w is not None:
-            out.update(self.flow.figures(state.w, X, state.rho, state.params))
-            if self.force is not None:                   # the force on the solid phase [N/m]
-                out["drag"], out["lift"] = self.force.resultant(state.w, X, state.rho, state.params)
-        if self.structure is not None and state.u is not None:
-            out.update(self.structure.figures(state.u, state.w, X, state.rho, state.params))
+        for field in self.fields:
+            out.update(field.figures(self, state))
         return out

@@ -16,8 +16,9 @@ The motion is a displacement of every node of the solid elements:
   block (plane-strain elasticity of the unified domain, the void at the
   scene's ``e_min_ratio``) and scaled so the largest displacement is
   ``tip_displacement``;
-* ``fsi`` -- the structure's displacement under the flow (Navier-Stokes with
-  Brinkman friction in the solid, the total-stress load), scaled to
+* ``fsi`` -- the structure's displacement under the flow: the scene solved
+  one-way by the coupled model (:class:`tofsi.coupled.CoupledModel`, Navier-Stokes
+  with Brinkman friction in the solid, the scene's ``structure.load``), scaled to
   ``tip_displacement`` unless ``scale = false``.
 """
 
@@ -25,10 +26,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofsi.coupled import CoupledModel
 from tofsi.errors import InputError
 from tofsi.mesh import SOLID, StructuredQuadMesh
-from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
+from tofsi.scene_tables import Effects
 from tofsi.quality import signed_area
 
 
@@ -104,17 +106,20 @@ def cantilever_under_pressure(mesh: StructuredQuadMesh, structure, tip_displacem
     return scaled_to(solid_part(mesh, u), tip_displacement, "pressure")
 
 
-def structure_under_flow(mesh: StructuredQuadMesh, structure, fluid, deformation) -> np.ndarray:
-    """Displacement ``(n, 2)`` of the solid nodes under the flow (one-way coupled solve)."""
-    rho = (mesh.region == SOLID).astype(float)
-    flow = Flow(mesh, fluid)
-    w, _ = flow.solve(rho=rho)
-    u = solid_part(mesh, Structure(mesh, structure, flow).solve(w, None, rho))
-    return scaled_to(u, deformation.tip_displacement, "fsi") if deformation.scale else u
+def structure_under_flow(mesh: StructuredQuadMesh, scene) -> np.ndarray:
+    """Displacement ``(n, 2)`` of the solid nodes under the flow: the scene's flow and structure
+    solved one-way by the coupled model (whatever its effects say: a mesh-motion scene
+    simulates neither)."""
+    one_way = scene.with_tables(effects=Effects(fluid="navier-stokes", structure="linear-elastic"))
+    model = CoupledModel(one_way, mesh)
+    u = solid_part(mesh, model.solve(model.densities()).u)
+    d = scene.deformation
+    return scaled_to(u, d.tip_displacement, "fsi") if d.scale else u
 
 
-def prescribed_motion(mesh: StructuredQuadMesh, deformation, structure, fluid=None) -> np.ndarray:
+def prescribed_motion(mesh: StructuredQuadMesh, scene) -> np.ndarray:
     """Displacement ``(n, 2)`` of the solid nodes (zero elsewhere) for a scene's deformation."""
+    deformation, structure = scene.deformation, scene.structure
     solid_nodes = mesh.nodes_of(SOLID)
     if solid_nodes.size == 0:
         raise InputError("geometry.solids", [], "a mesh-motion study needs a solid to move")
@@ -130,7 +135,7 @@ def prescribed_motion(mesh: StructuredQuadMesh, deformation, structure, fluid=No
     elif mode == "pressure":
         u = cantilever_under_pressure(mesh, structure, deformation.tip_displacement)
     elif mode == "fsi":
-        u = structure_under_flow(mesh, structure, fluid, deformation)
+        u = structure_under_flow(mesh, scene)
     else:
         raise InputError("deformation.mode", mode,
                          "allowed here: 'translation', 'rotation', 'bending', 'pressure', 'fsi'")

@@ -13,7 +13,6 @@ vector-Jacobian product), so the chain rule is written once, in
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,30 +66,31 @@ class Projection:
 
 
 class DesignMap:
-    """gamma (design elements) -> rho (all elements): filter, projection, fixed regions."""
+    """gamma (design elements) -> rho (all elements): filter, projection, fixed regions.
 
-    def __init__(self, mesh, filter_radius: float, beta: float = 0.0, eta: float = 0.5):
+    The projection's sharpness ``beta`` is a continuation parameter: an argument of every
+    call (the problem's :class:`~tofsi.blocks.Continuation` holds it), never stored here.
+    """
+
+    def __init__(self, mesh, filter_radius: float, eta: float = 0.5):
         self.design = np.flatnonzero(mesh.region == DESIGN)
         self.base = (mesh.region == SOLID).astype(float)
         self.filter = DensityFilter(mesh.centroids[self.design], filter_radius)
-        self.projection = Projection(beta, eta)
+        self.eta = eta
 
     @property
     def size(self) -> int:
         return self.design.size
 
-    def with_beta(self, beta: float) -> "DesignMap":
-        """The same map with projection sharpness ``beta`` (the filter is shared)."""
-        other = copy.copy(self)
-        other.projection = Projection(beta, self.projection.eta)
-        return other
+    def projection(self, beta: float) -> Projection:
+        return Projection(beta, self.eta)
 
-    def forward(self, gamma: np.ndarray) -> np.ndarray:
+    def forward(self, gamma: np.ndarray, beta: float) -> np.ndarray:
         rho = self.base.copy()
-        rho[self.design] = self.projection.forward(self.filter.forward(gamma))
+        rho[self.design] = self.projection(beta).forward(self.filter.forward(gamma))
         return rho
 
-    def transpose(self, gamma: np.ndarray, rho_bar: np.ndarray) -> np.ndarray:
+    def transpose(self, gamma: np.ndarray, beta: float, rho_bar: np.ndarray) -> np.ndarray:
         """``d rho / d gamma`` transposed applied to ``rho_bar`` (E,) -> (n_design,)."""
         filtered = self.filter.forward(gamma)
-        return self.filter.transpose(self.projection.transpose(filtered, rho_bar[self.design]))
+        return self.filter.transpose(self.projection(beta).transpose(filtered, rho_bar[self.design]))

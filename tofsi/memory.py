@@ -4,11 +4,13 @@ A sparse LU on a structured 2D grid with a nested-dissection ordering has
 ``nnz(L + U) ~ c n log2 n`` entries for ``n`` unknowns (George 1973). The
 peak of a solve is then modelled as
 
-    peak = base + a E + b (nnz_LU(flow) + nnz_LU(structure or mover))
+    peak = base + sum_fields (a_f E + b nnz_LU(field))
 
-with ``E`` elements (element matrices, assembly slots and the fluid
-kernel's temporaries grow with ``E``) and 12 bytes per factor entry (value
-and index) times ``b`` (the factorization's working space). The constants
+over the fields a command solves (each field's entry in
+:data:`tofsi.registry.FIELDS` gives its unknowns, their kind of fill and its
+``a_f``), with ``E`` elements (element matrices, assembly slots and the
+fluid kernel's temporaries grow with ``E``) and 12 bytes per factor entry
+(value and index) times ``b`` (the factorization's working space). The constants
 are fitted to measured peaks of ``tofsi solve`` (``benchmarks/memory.py``;
 the table in ``benchmarks/README.md`` gives the estimate against the
 measured peak). Only the axes of the mesh are computed, so the guard
@@ -22,11 +24,13 @@ import os
 from dataclasses import dataclass
 
 from tofsi.errors import InputError
+from tofsi.registry import FIELDS
 
 GB = 1024.0 ** 3
 BASE_BYTES = 0.15 * GB          # interpreter, NumPy/SciPy, the scene (measured 0.10 GB at import)
-BYTES_PER_ELEMENT = 8.6e3       # fitted to tofsi solve at 4005, 16200, 36315 elements (SuperLU)
-BYTES_PER_FACTOR_ENTRY = 21.0   # 12 stored + the factorization's working space, same fit
+BYTES_PER_FACTOR_ENTRY = 21.0   # 12 stored + the factorization's working space, fitted to tofsi
+                                # solve at 4005, 16200, 36315 elements (SuperLU), with the flow
+                                # field's 8.6 kB per element
 FILL = {"flow": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured 12.6-13.9 / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
 
@@ -51,26 +55,23 @@ def factor_entries(n: int, kind: str) -> float:
 
 
 def estimate(scene, command: str = "solve", backend: str = "superlu") -> Estimate:
-    """The peak memory of ``tofsi COMMAND`` on ``scene`` from its mesh sizes alone."""
+    """The peak memory of ``tofsi COMMAND`` on ``scene`` from its mesh sizes alone: every field
+    the command solves (:meth:`tofsi.fields.Field.active`) adds its unknowns' LU and its
+    per-element bytes."""
     from tofsi.channel import mesh_axes
+    from tofsi.fields import GridSize
     xs, ys = mesh_axes(scene.geometry, scene.mesh)
-    nx, ny = len(xs) - 1, len(ys) - 1
-    E, n1, n9 = nx * ny, (nx + 1) * (ny + 1), (2 * nx + 1) * (2 * ny + 1)
-    unknowns, entries = {}, {}
-    e = scene.effects
-    fluid = e.fluid != "none" and command not in ("move", "tune")
-    if fluid:
-        unknowns["flow"] = 2 * n9 + n1
-    if fluid and e.structure != "none":
-        unknowns["structure"] = 2 * n1
-    if command in ("move", "tune") or (fluid and e.coupling == "two-way" and e.mesh_motion != "none"):
-        unknowns["mesh motion"] = 2 * n1
-    for name, n in unknowns.items():
-        entries[name] = factor_entries(n, "flow" if name == "flow" else "q1-vector")
+    grid = GridSize(len(xs) - 1, len(ys) - 1)
+    unknowns, entries, per_element = {}, {}, 0.0
+    for field in FIELDS:
+        if field.active(scene, command):
+            need = field.memory(grid)
+            unknowns[field.title] = need.unknowns
+            entries[field.title] = factor_entries(need.unknowns, need.fill)
+            per_element += need.bytes_per_element
     scale = BACKEND_FACTOR.get(backend, 1.0)
-    peak = (BASE_BYTES + BYTES_PER_ELEMENT * E * (1.0 if fluid else 0.25)
-            + scale * BYTES_PER_FACTOR_ENTRY * sum(entries.values()))
-    return Estimate(E, unknowns, entries, peak)
+    peak = BASE_BYTES + per_element * grid.elements + scale * BYTES_PER_FACTOR_ENTRY * sum(entries.values())
+    return Estimate(grid.elements, unknowns, entries, peak)
 
 
 def available_bytes() -> float:

@@ -11,8 +11,8 @@ from the fluid-structure interface.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from tofsi import quality
 from tofsi.channel import build_mesh
 from tofsi.deformation import prescribed_motion
 from tofsi.errors import InputError
+from tofsi.linalg import LinearAlgebra
 from tofsi.mesh import StructuredQuadMesh
 from tofsi.physics.mesh_motion import MeshMotion
 
@@ -48,13 +49,25 @@ class MotionSetup:
         return self.motion.layer
 
 
-@lru_cache(maxsize=4)
-def _mesh_and_motion(geometry, mesh_settings, deformation, structure, fluid):
-    """Mesh and structure motion, shared by runs that differ only in the mover (studies)."""
-    mesh = build_mesh(geometry, mesh_settings)
-    motion = prescribed_motion(mesh, deformation, structure, fluid)
-    motion.setflags(write=False)
-    return mesh, motion
+KEPT_MOTIONS = 4
+_motions: OrderedDict = OrderedDict()      # the last few meshes and structure motions
+
+
+def _mesh_and_motion(scene):
+    """Mesh and structure motion, kept for runs that differ only in the mover (studies): keyed by
+    every table the motion reads (the flow's and the solver's only for the ``fsi`` mode)."""
+    d = scene.deformation
+    key = (scene.geometry, scene.mesh, d, scene.structure,
+           (scene.fluid, scene.solver, scene.design, scene.coupled) if d.mode == "fsi" else None)
+    if key not in _motions:
+        mesh = build_mesh(scene.geometry, scene.mesh)
+        motion = prescribed_motion(mesh, scene)
+        motion.setflags(write=False)
+        _motions[key] = (mesh, motion)
+        while len(_motions) > KEPT_MOTIONS:
+            _motions.popitem(last=False)
+    _motions.move_to_end(key)
+    return _motions[key]
 
 
 def motion_setup(scene, prescribed: np.ndarray | None = None) -> MotionSetup:
@@ -63,12 +76,12 @@ def motion_setup(scene, prescribed: np.ndarray | None = None) -> MotionSetup:
         raise InputError("mover.name", "none", "a mesh-motion study needs a mover; allowed: "
                          + ", ".join(map(repr, movers.available())))
     if prescribed is None:
-        mesh, prescribed = _mesh_and_motion(scene.geometry, scene.mesh, scene.deformation,
-                                            scene.structure, scene.fluid if scene.deformation.mode == "fsi" else None)
+        mesh, prescribed = _mesh_and_motion(scene)
     else:
         mesh = build_mesh(scene.geometry, scene.mesh)
     size = float(np.max(np.linalg.norm(prescribed, axis=1))) if prescribed.size else 0.0
-    return MotionSetup(mesh, MeshMotion(mesh, scene, motion_size=size), prescribed)
+    return MotionSetup(mesh, MeshMotion(mesh, scene, motion_size=size,
+                                        linear_algebra=LinearAlgebra.from_settings(scene.solver)), prescribed)
 
 
 def run_move(scene, progress=None, setup: MotionSetup | None = None) -> tuple[MotionSetup, MoveResult]:

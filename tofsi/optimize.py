@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import nlopt
@@ -62,8 +62,6 @@ class Iteration:
     max_area_change: float = float("nan")
 
 
-
-
 def stop_reason(result: int) -> str:
     """Why NLopt ended a stage: ``max_iter`` (the evaluation budget) or NLopt's own reason."""
     if result == nlopt.MAXEVAL_REACHED:
@@ -86,6 +84,20 @@ def non_discreteness(rho: np.ndarray) -> float:
     return float(400.0 * np.mean(rho * (1.0 - rho)))
 
 
+@dataclass
+class StageRun:
+    """The running continuation stage: its number and start, the scale of its objective (its
+    first value), its evaluations so far (checkpointed), the evaluations a resume replays, and
+    the last evaluation (NLopt asks for the objective and the constraints at one point)."""
+
+    stage: int
+    start: np.ndarray
+    scale: float | None = None
+    log: list = field(default_factory=list)
+    replay: list = field(default_factory=list)
+    last: tuple | None = None                   # (gamma, entry)
+
+
 class Optimizer:
     """NLopt-driven design of a :class:`~tofsi.problem.Problem` with checkpoints in ``output``.
 
@@ -99,10 +111,7 @@ class Optimizer:
         self.settings, self.design = self.scene.optimizer, self.scene.design
         self.on_iteration, self.on_picture = on_iteration, on_picture
         self.history: list[Iteration] = []
-        self.scale = None
-        self._replay: list[dict] = []        # stored evaluations of this stage, in order
-        self._stage_log: list[dict] = []     # evaluations of the running stage (checkpointed)
-        self._last = None                    # (gamma, entry) of the last evaluation
+        self.run_stage: StageRun | None = None
         self.stop_reason = "max_iter"        # why the last stage ended (see stop_reason())
         self._t0 = time.perf_counter()
 
@@ -111,22 +120,22 @@ class Optimizer:
         return self.output / "checkpoint.npz"
 
     # ---- evaluation with replay --------------------------------------------------------
-    def _evaluate(self, gamma: np.ndarray, stage: int) -> dict:
-        if self._last is not None and np.array_equal(self._last[0], gamma):
-            return self._last[1]
-        if self._replay:
-            stored = self._replay.pop(0)
+    def _evaluate(self, gamma: np.ndarray) -> dict:
+        run = self.run_stage
+        if run.last is not None and np.array_equal(run.last[0], gamma):
+            return run.last[1]
+        if run.replay:
+            stored = run.replay.pop(0)
             if not np.array_equal(stored["gamma"], gamma):
                 raise InputError("--resume", str(self.checkpoint_path),
                                  "the checkpoint does not match this scene's optimization path")
             entry = stored
         else:
             entry = self._compute(gamma)
-        previous = self._last[0] if self._last is not None else (
-            self._stage_log[-1]["gamma"] if self._stage_log else gamma)
-        self._last = (gamma.copy(), entry)
-        self._stage_log.append(entry)
-        self._record(gamma, entry, stage, float(np.max(np.abs(gamma - previous))))
+        previous = run.last[0] if run.last is not None else (run.log[-1]["gamma"] if run.log else gamma)
+        run.last = (gamma.copy(), entry)
+        run.log.append(entry)
+        self._record(gamma, entry, float(np.max(np.abs(gamma - previous))))
         return entry
 
     def _compute(self, gamma: np.ndarray) -> dict:
@@ -142,18 +151,19 @@ class Optimizer:
                 "volume": p.volume_fraction.value(p.model, state), "quality": mesh_quality(p.model.mesh, state),
                 "state": state}
 
-    def _record(self, gamma, entry, stage, change) -> None:
-        if self.scale is None:                  # each stage scales by its first objective value
-            self.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
-        params = continuation(self.scene, stage)
-        it = Iteration(len(self.history), stage, float(entry["f"]), float(entry["f"] / self.scale),
+    def _record(self, gamma, entry, change) -> None:
+        run = self.run_stage
+        if run.scale is None:                   # each stage scales by its first objective value
+            run.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
+        params = self.problem.params            # the stage's record, as the problem solved with it
+        it = Iteration(len(self.history), run.stage, float(entry["f"]), float(entry["f"] / run.scale),
                        float(entry["volume"]), float(entry["g"][0]), change, params.beta,
                        params.penalty, params.brinkman_q, time.perf_counter() - self._t0,
                        params.coupling or self.scene.effects.coupling, *entry["quality"])
         self.history.append(it)
         if "state" in entry:                           # computed now (not replayed): save
-            self._checkpoint(stage, entry["state"])
-            for earlier in self._stage_log[:-1]:       # hold one state (and its factorizations)
+            self._checkpoint(entry["state"])
+            for earlier in run.log[:-1]:               # hold one state (and its factorizations)
                 earlier.pop("state", None)
             self._write_history()
             if self.on_picture and (it.iteration % self.settings.output_every == 0):
@@ -162,17 +172,18 @@ class Optimizer:
             self.on_iteration(it)
 
     # ---- checkpoints -----------------------------------------------------------------
-    def _checkpoint(self, stage: int, state: State) -> None:
+    def _checkpoint(self, state: State) -> None:
+        run = self.run_stage
         log_arrays = {}
-        for k, e in enumerate(self._stage_log):
+        for k, e in enumerate(run.log):
             for key in ("gamma", "df", "g", "dg"):
                 log_arrays[f"e{k}_{key}"] = e[key]
             log_arrays[f"e{k}_f"] = np.array([e["f"], e["volume"]])
             log_arrays[f"e{k}_quality"] = np.array(e["quality"])
         fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
-        meta = {"scene": self.scene.name, "stage": stage, "n_stage_evaluations": len(self._stage_log),
-                "scale": self.scale, "history": [asdict(h) for h in self.history],
-                "stage_start": self._stage_start.tolist(),
+        meta = {"scene": self.scene.name, "stage": run.stage, "n_stage_evaluations": len(run.log),
+                "scale": run.scale, "history": [asdict(h) for h in self.history],
+                "stage_start": run.start.tolist(),
                 "identity": identity(self.scene, self.problem.model.mesh, self.problem.n_design)}
 
         def write(tmp):
@@ -198,29 +209,26 @@ class Optimizer:
         """Optimize from the initial design (or the checkpoint); returns the final figures."""
         p, s, d = self.problem, self.settings, self.design
         gamma = p.initial_design()
-        first_stage, skip = 0, 0
+        resumed = None
         if resume:
-            meta, self._replay, state = self._load_checkpoint()
-            first_stage, self.scale = meta["stage"], meta["scale"]
-            skip = meta["history"][-1]["iteration"] + 1 - len(self._replay)   # earlier stages
+            meta, replay, state = self._load_checkpoint()
+            skip = meta["history"][-1]["iteration"] + 1 - len(replay)   # the earlier stages' iterations
             self.history = [Iteration(**h) for h in meta["history"][:skip]]
-            gamma = np.asarray(meta["stage_start"], dtype=float)
+            resumed = StageRun(meta["stage"], np.asarray(meta["stage_start"], dtype=float), meta["scale"],
+                               replay=replay)
             p.set_guess(state)
         n_stages = d.n_stages
-        for stage in range(first_stage, n_stages):
+        for stage in range(resumed.stage if resumed else 0, n_stages):
             remaining = s.max_iter - len(self.history)
             if remaining <= 0:
                 break
-            params = continuation(self.scene, stage)
-            p.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q, coupling=params.coupling)
-            if not (resume and stage == first_stage):
-                gamma = p.feasible(gamma)          # each stage starts within the volume bound
-            self._stage_start = gamma.copy()
-            self._stage_log, self._last = [], None
-            if not (resume and stage == first_stage):
-                self.scale = None
+            p.set_stage(continuation(self.scene, stage))
+            if resumed is not None and stage == resumed.stage:
+                self.run_stage = resumed              # the stage's start and scale, replayed
+            else:                                     # each stage starts within the volume bound
+                self.run_stage = StageRun(stage, p.feasible(gamma))
             last_stage = stage == n_stages - 1
-            gamma = self._run_stage(gamma, stage, remaining if last_stage else min(remaining, d.stage_iterations))
+            gamma = self._run_stage(remaining if last_stage else min(remaining, d.stage_iterations))
         return self.finish(gamma)
 
     def _converged(self, stage: int) -> bool:
@@ -236,23 +244,24 @@ class Optimizer:
         f = [it.objective for it in h[-4:]]
         return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
 
-    def _run_stage(self, gamma, stage: int, max_evaluations: int) -> np.ndarray:
-        s = self.settings
+    def _run_stage(self, max_evaluations: int) -> np.ndarray:
+        s, run = self.settings, self.run_stage
+        gamma = run.start
         opt = nlopt.opt(ALGORITHMS[s.algorithm], gamma.size)
         opt.set_lower_bounds(np.zeros(gamma.size))
         opt.set_upper_bounds(np.ones(gamma.size))
         opt.set_initial_step(np.full(gamma.size, INITIAL_STEP))
 
         def objective(x, grad):
-            e = self._evaluate(np.asarray(x), stage)
+            e = self._evaluate(np.asarray(x))
             if grad.size:
-                grad[:] = e["df"] / self.scale
-            if self._converged(stage):
+                grad[:] = e["df"] / run.scale
+            if self._converged(run.stage):
                 raise nlopt.ForcedStop
-            return float(e["f"] / self.scale)
+            return float(e["f"] / run.scale)
 
         def constraint(result, x, grad):
-            e = self._evaluate(np.asarray(x), stage)
+            e = self._evaluate(np.asarray(x))
             result[:] = e["g"]
             if grad.size:
                 grad[:] = e["dg"]
@@ -265,9 +274,9 @@ class Optimizer:
             self.stop_reason = stop_reason(opt.last_optimize_result())
             return gamma
         except nlopt.ForcedStop:
-            log.info("stage %d converged after %d evaluations", stage, len(self._stage_log))
+            log.info("stage %d converged after %d evaluations", run.stage, len(run.log))
             self.stop_reason = "converged"
-            return self._last[0].copy()
+            return run.last[0].copy()
 
     def _write_history(self) -> None:
         rows = [asdict(h) for h in self.history]

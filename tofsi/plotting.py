@@ -22,10 +22,6 @@ from matplotlib.colors import Normalize  # noqa: E402
 
 from tofsi.output import atomic_write  # noqa: E402
 
-OBJECTIVE_LABELS = {"compliance": "compliance [J/m]", "dissipation": "dissipated power [W/m]",
-                    "pressure-drop": "pressure drop [Pa]"}
-
-
 def field_figure(points, width: float = 7.0):
     """A figure for a field over the channel, its height following the domain's aspect."""
     span = np.ptp(points, axis=0)

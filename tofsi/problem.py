@@ -10,15 +10,16 @@ cached (keyed by the design and the continuation parameters), because an
 optimizer asks for the objective and every constraint at the same point.
 The previous state warm-starts the next forward solve; every solve creates
 its own linear solvers, so its result depends only on its inputs.
-Continuation parameters (projection sharpness, SIMP penalty, Brinkman q) are
-a frozen record, :attr:`Problem.params`, set with :meth:`Problem.set_stage`
-and passed into every solve.
+Continuation parameters (projection sharpness, SIMP penalty, Brinkman q,
+coupling) are one frozen record, :attr:`Problem.params`, set whole with
+:meth:`Problem.set_stage` (``problem.set_stage(continuation(scene, stage))``)
+and passed into the design map and every solve; nothing else holds them.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,7 +29,21 @@ from tofsi.coupled import CoupledModel, State
 from tofsi.design import DesignMap
 from tofsi.design_file import read_design
 from tofsi.errors import InputError
-from tofsi.objectives import OBJECTIVES, VolumeFraction
+from tofsi.kept import Kept, input_key
+from tofsi.objectives.volume import VolumeFraction
+from tofsi.registry import OBJECTIVES
+
+
+@dataclass(eq=False)
+class DesignPoint:
+    """One design point: its design variables and coupled state, and what is derived from them
+    on first use (the adjoint, the objective and the constraints with their gradients)."""
+
+    gamma: np.ndarray
+    state: State
+    adjoint: Adjoint | None = None
+    objective: tuple | None = None
+    constraints: tuple | None = None
 
 
 class Problem:
@@ -40,14 +55,11 @@ class Problem:
         self.scene = scene
         self.model = CoupledModel(scene, mesh)
         d = scene.design
-        needs = OBJECTIVES[d.objective].needs                 # the effect it is a figure of
-        if getattr(scene.effects, needs) == "none":
-            raise InputError("design.objective", d.objective, f"needs effects.{needs}")
         self.params: Continuation = self.model.params
-        self.map = DesignMap(self.model.mesh, d.filter_radius, self.params.beta, d.eta)
-        self.objective = OBJECTIVES[d.objective]()
+        self.map = DesignMap(self.model.mesh, d.filter_radius, d.eta)
+        self.objective = OBJECTIVES.get(d.objective)()     # its effect is checked with the scene
         self.volume_fraction = VolumeFraction(self.model.mesh, self.map.design)
-        self._cache: dict = {}
+        self.kept_point = Kept()
         self._guess: State | None = None
         self.evaluations = 0
         self.initial_design()                      # a bad design.initial fails here, early
@@ -64,16 +76,12 @@ class Problem:
             return np.full(self.n_design, fraction if self.scene.design.constraint == "solid" else 1 - fraction)
         return read_design(path, self.n_design)         # checked: shape, finite, in [0, 1]
 
-    def set_stage(self, beta: float | None = None, penalty: float | None = None, q: float | None = None,
-                  coupling: str | None = None):
-        """Change continuation parameters: a new :attr:`params` record (nothing else changes)."""
-        changes = {k: float(v) for k, v in (("beta", beta), ("penalty", penalty), ("brinkman_q", q))
-                   if v is not None}
-        if coupling is not None:
-            changes["coupling"] = coupling
-        self.params = dataclasses.replace(self.params, **changes)
-        if beta is not None:
-            self.map = self.map.with_beta(beta)
+    def set_stage(self, params: Continuation) -> None:
+        """Continue with the continuation record ``params`` (e.g. ``continuation(scene, stage)``
+        or ``dataclasses.replace(problem.params, brinkman_q=0.01)``); nothing else changes."""
+        if not isinstance(params, Continuation):
+            raise TypeError("set_stage takes a Continuation record, e.g. tofsi.coupled.continuation(scene, stage)")
+        self.params = params
 
     def reset_solvers(self) -> None:
         """Deprecated: every solve creates its own solvers, so there is nothing to reset."""
@@ -86,7 +94,7 @@ class Problem:
 
     # ---- evaluation -------------------------------------------------------------------
     def densities(self, gamma) -> np.ndarray:
-        return self.map.forward(np.asarray(gamma, dtype=float))
+        return self.map.forward(np.asarray(gamma, dtype=float), self.params.beta)
 
     def phase_fraction(self, gamma) -> float:
         """The constrained phase's fraction of the design region (solid, or fluid with
@@ -117,40 +125,40 @@ class Problem:
         return np.clip(gamma - sign * hi, 0.0, 1.0)
 
     def solve(self, gamma) -> State:
-        """The coupled state of design ``gamma`` (cached)."""
-        return self._entry(gamma)["state"]
+        """The coupled state of design ``gamma`` (kept for the point)."""
+        return self.point(gamma).state
 
-    def _entry(self, gamma) -> dict:
+    def point(self, gamma) -> "DesignPoint":
+        """The evaluation of design ``gamma`` at the current continuation record: its state now,
+        its adjoint and derivatives on first use. The last point is kept, keyed by ``gamma`` and
+        :attr:`params` (an optimizer asks for the objective and every constraint at one point)."""
         gamma = np.asarray(gamma, dtype=float)
         if gamma.shape != (self.n_design,):
             raise ValueError(f"gamma must have {self.n_design} entries")
         if not np.all(np.isfinite(gamma)):
             raise InputError("gamma", "non-finite", "design variables must be finite")
-        key = (gamma.tobytes(), self.params)
-        if key not in self._cache:
-            rho = self.densities(gamma)
-            state = self.model.solve(rho, self._guess, params=self.params)
-            self._guess = state.data()
-            self._cache.clear()
-            self._cache[key] = {"state": state, "gamma": gamma.copy()}
-            self.evaluations += 1
-        return self._cache[key]
+        return self.kept_point.get(input_key(gamma, self.params), lambda: self._new_point(gamma))
 
-    def _adjoint(self, entry) -> Adjoint:
-        if "adjoint" not in entry:
-            state = entry["state"]
-            entry["adjoint"] = Adjoint(self.model.system_for(state.params), state)
-        return entry["adjoint"]
+    def _new_point(self, gamma) -> "DesignPoint":
+        state = self.model.solve(self.densities(gamma), self._guess, params=self.params)
+        self._guess = state.data()
+        self.evaluations += 1
+        return DesignPoint(gamma.copy(), state)
+
+    def _adjoint(self, point: "DesignPoint") -> Adjoint:
+        if point.adjoint is None:
+            point.adjoint = Adjoint(self.model.system_for(point.state.params), point.state)
+        return point.adjoint
 
     def evaluate(self, gamma) -> tuple[float, np.ndarray]:
         """Objective and its gradient with respect to gamma."""
-        entry = self._entry(gamma)
-        if "objective" not in entry:
-            state = entry["state"]
+        point = self.point(gamma)
+        if point.objective is None:
+            state = point.state
             f = self.objective.value(self.model, state)
-            df_drho = self._adjoint(entry).gradient(self.objective.partials(self.model, state))
-            entry["objective"] = (f, self.map.transpose(entry["gamma"], df_drho))
-        return entry["objective"]
+            df_drho = self._adjoint(point).gradient(self.objective.partials(self.model, state))
+            point.objective = (f, self.map.transpose(point.gamma, state.params.beta, df_drho))
+        return point.objective
 
     def constraints(self, gamma) -> tuple[np.ndarray, np.ndarray]:
         """``g = [phase fraction / volume_fraction - 1] <= 0`` and ``dg/dgamma`` (1, n_design).
@@ -158,17 +166,17 @@ class Problem:
         The phase is the solid (``design.constraint = "solid"``) or the fluid
         (``"fluid"``: fraction ``1 - solid``) of the design region.
         """
-        entry = self._entry(gamma)
-        if "constraints" not in entry:
-            state = entry["state"]
+        point = self.point(gamma)
+        if point.constraints is None:
+            state = point.state
             d = self.scene.design
             solid = self.volume_fraction.value(self.model, state)
-            dvolume = self._adjoint(entry).gradient(self.volume_fraction.partials(self.model, state))
-            dsolid = self.map.transpose(entry["gamma"], dvolume)
+            dvolume = self._adjoint(point).gradient(self.volume_fraction.partials(self.model, state))
+            dsolid = self.map.transpose(point.gamma, state.params.beta, dvolume)
             sign, fraction = (1.0, solid) if d.constraint == "solid" else (-1.0, 1.0 - solid)
             g = fraction / d.volume_fraction - 1.0
-            entry["constraints"] = (np.array([g]), sign * dsolid[None, :] / d.volume_fraction)
-        return entry["constraints"]
+            point.constraints = (np.array([g]), sign * dsolid[None, :] / d.volume_fraction)
+        return point.constraints
 
     def volume(self, gamma) -> float:
         """Solid fraction of the design region."""

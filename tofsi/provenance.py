@@ -18,7 +18,6 @@ Every output folder gets a ``run.json`` (see :mod:`tofsi.run_folder`) holding
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import json
 import os
@@ -27,30 +26,21 @@ import subprocess
 from functools import lru_cache
 from pathlib import Path
 
-TABLES = ("geometry", "mesh", "deformation", "effects", "fluid", "structure", "design",
-          "optimizer", "coupled", "tune")
-
-
-def _plain(value):
-    """Tuples -> lists, mappings -> dicts, recursively (TOML and JSON shapes)."""
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    return value
-
+from tofsi.registry import SCENE_TABLES
+from tofsi.scene_tables import plain
 
 def scene_tables(scene) -> dict:
-    """The effective scene as raw tables: ``scene_from_dict(scene_tables(s)) == s``."""
+    """The effective scene as raw tables, every registered table written out:
+    ``scene_from_dict(scene_tables(s)) == s``."""
     tables = {"name": scene.name, "description": scene.description}
-    for key in TABLES:
-        tables[key] = _plain(dataclasses.asdict(getattr(scene, key)))
-    mover = {"name": scene.mover.name, "layers": list(scene.mover.layers),
-             "layers_from": scene.mover.layers_from, "band": _plain(dataclasses.asdict(scene.mover.band))}
-    for name, params in scene.mover.params.items():
-        mover[name] = _plain(dataclasses.asdict(params))
-    tables["mover"] = mover
+    for table in SCENE_TABLES:
+        tables[table.name] = table.write(getattr(scene, table.name))
     return tables
+
+
+def resumable_keys() -> tuple[str, ...]:
+    """Dotted keys a ``--resume`` may change (they cannot change the replayed history)."""
+    return ("description", *(f"{t.name}.{k}" for t in SCENE_TABLES for k in t.resumable))
 
 
 def flatten(tables: dict, prefix: str = "") -> dict:
@@ -158,17 +148,15 @@ def run_record(scene, overrides, command_line, program: str) -> dict:
 def mover_settings(scene) -> dict:
     """The settings that define a move: the motion, the mover with its parameters, the mesh."""
     options = scene.mover.options
-    return {"deformation": _plain(dataclasses.asdict(scene.deformation)),
+    return {"deformation": plain(scene.deformation),
             "mover": {"name": scene.mover.name, "layers": list(scene.mover.layers),
-                      "band": _plain(dataclasses.asdict(scene.mover.band)),
-                      "params": _plain(dataclasses.asdict(options)) if options is not None else {}},
-            "mesh": _plain(dataclasses.asdict(scene.mesh))}
+                      "band": plain(scene.mover.band), "params": plain(options) if options is not None else {}},
+            "mesh": plain(scene.mesh)}
 
 
-def solve_settings(scene) -> dict:
-    """The settings that define a forward solve: effects, physics, coupling, mesh."""
-    tables = scene_tables(scene)
-    keys = ["effects", "fluid", "structure", "coupled", "mesh"]
-    if scene.effects.mesh_motion != "none":
-        keys.append("mover")
-    return {k: tables[k] for k in keys}
+def solve_settings(model) -> dict:
+    """The settings that define a model's forward solve: the effects, the mesh, the coupling
+    and every active field's own tables."""
+    tables = scene_tables(model.scene)
+    keys = ["effects", "mesh", "coupled", *(t for field in model.fields for t in field.tables)]
+    return {k: tables[k] for k in dict.fromkeys(keys)}

@@ -18,6 +18,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+SKEWNESS_LABEL = "skewness (1 square corners, 0 degenerate, < 0 inverted)"
+"""What the skewness scale means, for colour bars and axes."""
+
 
 def corner_angles(points: np.ndarray, quads: np.ndarray) -> np.ndarray:
     """Signed interior corner angles ``(E, 4)`` in degrees, in [0, 360)."""

@@ -6,7 +6,7 @@ with the scene of the resuming run: a resume replays the stored evaluations,
 so any key that can change the replayed history (the objective, the volume
 bound, the filter, the continuation schedule, the physics, the mesh, the
 stopping tolerances) must be equal. Only keys that cannot change it may
-differ (:data:`MAY_DIFFER`). A missing, truncated or garbage checkpoint, or
+differ (each scene table's ``resumable`` keys, :func:`~tofsi.provenance.resumable_keys`). A missing, truncated or garbage checkpoint, or
 one of another mesh, is an :class:`~tofsi.errors.InputError` in one line.
 """
 
@@ -19,9 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from tofsi.errors import InputError
-from tofsi.provenance import differing_keys, flatten, scene_tables
+from tofsi.provenance import differing_keys, flatten, resumable_keys, scene_tables
 
-MAY_DIFFER = ("description", "optimizer.max_iter", "optimizer.output_every")
 AFRESH = "start afresh with --overwrite or a new --output folder"
 
 
@@ -65,13 +64,14 @@ def check_resume(meta: dict, data: dict, problem, path) -> None:
         raise InputError("--resume", str(path), "the checkpoint does not record its scene (an older "
                          f"tofsi wrote it), so the resume cannot be checked; {AFRESH}")
     old, new = flatten(recorded["scene"]), flatten(scene_tables(scene))
-    differ = [k for k in differing_keys(recorded["scene"], scene_tables(scene)) if k not in MAY_DIFFER]
+    may_differ = resumable_keys()
+    differ = [k for k in differing_keys(recorded["scene"], scene_tables(scene)) if k not in may_differ]
     if differ:
         changes = "; ".join(f"{k}: {_shown(old.get(k))} -> {_shown(new.get(k))}" for k in differ[:4])
         more = f" and {len(differ) - 4} more" if len(differ) > 4 else ""
         raise InputError("--resume", differ, f"the scene differs from the checkpoint's ({changes}{more}); "
                          "a resume continues the same problem (only "
-                         f"{', '.join(MAY_DIFFER[1:])} may change); {AFRESH}")
+                         f"{', '.join(may_differ[1:])} may change); {AFRESH}")
     here = identity(scene, mesh, problem.n_design)["mesh"]
     sizes = {"rho": mesh.n_elements, **{k: problem.n_design for k in data if k.endswith("_gamma")}}
     wrong = [k for k, n in sizes.items() if k in data and data[k].shape != (n,)]

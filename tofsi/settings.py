@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from tofsi.config import option
 from tofsi.errors import InputError
 from tofsi.mesh import SIDES
+from tofsi.registry import OBJECTIVES
 
 
 @dataclass(frozen=True)
@@ -128,24 +129,13 @@ class CoupledSettings:
                                     "converge to the same solution; block is faster, direct the fallback")
 
 
-def objective_names() -> tuple[str, ...]:
-    """The objectives' registry, read when a scene is validated (an objective is added in
-    :mod:`tofsi.objectives` alone)."""
-    from tofsi.objectives import OBJECTIVES          # on use: it pulls in the physics kernels
-    return tuple(OBJECTIVES)
-
-
 @dataclass(frozen=True)
 class DesignSettings:
     """Density design: objective, volume, filter and projection (table ``[design]``)."""
 
-    objective: str = option("compliance", choices=objective_names,
-                            doc="quantity to minimize (tofsi.objectives.OBJECTIVES): compliance, "
-                                "f.u of the fluid load [J/m]; dissipation, Borrvall-Petersson's "
-                                "1/2 int (mu grad v:grad v + alpha |v|^2) [W/m], half the "
-                                "dissipated_power figure when v = 0 on the whole boundary; "
-                                "dissipation-strain, topFlow's 1/2 int (2 mu eps:eps + alpha |v|^2) [W/m]; "
-                                "pressure-drop, mean inflow minus outflow pressure over the openings [Pa]")
+    objective: str = option("compliance", choices=OBJECTIVES.names,
+                            doc="quantity to minimize, an entry of the objectives registry "
+                                "(tofsi.objectives; their descriptions follow the table)")
     volume_fraction: float = option(0.25, gt=0, lt=1,
                                     doc="upper bound of the constrained phase's fraction of the "
                                         "design region")

@@ -16,24 +16,10 @@ from __future__ import annotations
 import logging
 import os
 
+from tofsi.linalg.choice import LinearAlgebra, environment_int, solver_threads
+
+__all__ = ["configure", "mpi_rank", "set_blas_threads", "solver_threads"]
 log = logging.getLogger(__name__)
-
-
-def _override(name: str, value: int) -> int:
-    text = os.environ.get(name, "").strip()
-    if not text:
-        return value
-    try:
-        return max(int(text), 0)
-    except ValueError:
-        log.warning("ignoring %s=%r (not an integer)", name, text)
-        return value
-
-
-def solver_threads(requested: int = 0) -> int:
-    """Threads for the sparse direct backend (0: one per core)."""
-    n = _override("TOFSI_THREADS", requested)
-    return n if n > 0 else (os.cpu_count() or 1)
 
 
 def set_blas_threads(requested: int = 1) -> int | None:
@@ -42,7 +28,7 @@ def set_blas_threads(requested: int = 1) -> int | None:
     Returns the limit applied (None when nothing was changed). MKL's own thread
     count is the solver's (:func:`solver_threads`), not touched here.
     """
-    n = _override("TOFSI_BLAS_THREADS", requested)
+    n = environment_int("TOFSI_BLAS_THREADS", requested)
     if n <= 0:
         return None
     import numpy.linalg  # noqa: F401  - load NumPy's and SciPy's OpenBLAS, so both are limited
@@ -56,16 +42,17 @@ def set_blas_threads(requested: int = 1) -> int | None:
     return n
 
 
-def configure(settings) -> None:
-    """Apply a scene's ``[solver]`` table: the default backend and the thread counts.
-
-    ``TOFSI_LINEAR_SOLVER`` in the environment overrides the scene's backend
-    (e.g. to run a benchmark or the test suite on another backend).
-    """
+def configure(settings) -> LinearAlgebra:
+    """Apply a scene's ``[solver]`` table to the process (the command line owns its process):
+    the default backend of solvers made without a model, its threads, and the BLAS threads.
+    Models do not call this: each keeps its own :class:`~tofsi.linalg.LinearAlgebra`.
+    ``TOFSI_LINEAR_SOLVER`` in the environment overrides the scene's backend."""
     from tofsi.linalg import backends
-    backends.set_default(os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or settings.linear_solver)
-    set_blas_threads(settings.blas_threads)
-    backends.set_threads(solver_threads(settings.threads))
+    linear_algebra = LinearAlgebra.from_settings(settings)
+    backends.set_default(linear_algebra.backend)
+    set_blas_threads(linear_algebra.blas_threads)
+    backends.set_threads(linear_algebra.threads)
+    return linear_algebra
 
 
 def mpi_rank() -> int:

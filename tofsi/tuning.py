@@ -295,11 +295,10 @@ def tune(scene, progress=None, setup: MotionSetup | None = None) -> TuneResult:
     if s.algorithm == "LBFGS" and (s.min_area_change or s.max_area_change):
         raise InputError("tune.algorithm", s.algorithm, "LBFGS takes no constraints; with area "
                          "bounds use SLSQP, MMA or CCSAQ")
-    if scene.mover.name == "spring" and scene.mover.options.diagonals == "selective":
-        log.warning("tune: selective diagonals switch as the factors change and the gradient holds "
-                    "them fixed; mover.spring.diagonals = 'both' gives a smooth map")
     t0 = time.perf_counter()
     setup = setup or motion_setup(scene)
+    if setup.motion.mover.kinks:
+        log.warning("tune: the %s mover's map is not smooth: %s", scene.mover.name, setup.motion.mover.kinks)
     param = parametrization(setup, s, scene.mover.layers)
     problem = TuningProblem(setup, s, param)
     z = np.clip(param.x0, param.lower, param.upper)

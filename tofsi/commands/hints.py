@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import movers
+
 
 def hint(err, scene, command: str = "") -> str:
     """A hint for the :class:`~tofsi.errors.NumericalError` ``err`` of a ``tofsi command``
@@ -9,10 +11,10 @@ def hint(err, scene, command: str = "") -> str:
     message, diagnostic = str(err), err.diagnostic
     if scene is None:
         return ""
-    if message.startswith("spring mover") and "invert" in message:
-        n = scene.mover.options.increments
-        return (f"the spring analogy inverted elements with mover.spring.increments = {n}; "
-                f"try more increments (e.g. --set mover.spring.increments={max(2 * n, 10)})")
+    if scene.mover.name != "none" and message.startswith(f"{scene.mover.name} mover") and "invert" in message:
+        advice = movers.mover_class(scene.mover.name)(scene.mover.options).inversion_hint
+        if advice:
+            return advice
     if (message.startswith("flow solve") and "density" in diagnostic
             and scene.effects.fluid == "navier-stokes" and scene.fluid.density > 0):
         failed_at, full, steps = diagnostic["density"], scene.fluid.density, scene.fluid.continuation_steps

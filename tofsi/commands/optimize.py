@@ -9,7 +9,7 @@ import numpy as np
 from tofsi.optimize import Optimizer
 from tofsi import quality
 from tofsi.output import atomic_write, write_vtu
-from tofsi.plotting import OBJECTIVE_LABELS, plot_convergence, plot_design
+from tofsi.plotting import plot_convergence, plot_design
 from tofsi.problem import Problem
 from tofsi.resume import check_checkpoint
 
@@ -45,14 +45,9 @@ class Pictures:
         p, mesh = self.problem, self.problem.model.mesh
         tag = iteration if iteration == "final" else f"{iteration:04d}"
         X = mesh.points if state.x is None else mesh.points + state.mesh_displacement
-        speed = None
-        point_data = {}
-        if state.w is not None:
-            v = state.w[:p.model.flow.n_velocity].reshape(-1, 2)
-            speed = np.linalg.norm(v[: mesh.n_nodes], axis=1)
-            point_data = {"velocity": v[: mesh.n_nodes], "pressure": state.w[p.model.flow.n_velocity:]}
-        if state.u is not None:
-            point_data["structure_displacement"] = state.u.reshape(-1, 2)
+        point_data = {name: values[:mesh.n_nodes] for field in p.model.fields     # Q2 nodes: corners first
+                      for name, values in field.point_data(p.model, state).items()}
+        speed = np.linalg.norm(point_data["velocity"], axis=1) if "velocity" in point_data else None
         name = f"design_{tag}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
                     title=f"{p.scene.name}: design at iteration {iteration}")
@@ -95,7 +90,7 @@ def run(scene, args, ctx) -> dict:
     figures = optimizer.run(resume=args.resume)
     ctx.extra["stop_reason"] = figures["stop_reason"]
     plot_convergence(ctx.output / "convergence.png", [h.__dict__ for h in optimizer.history],
-                     title=f"{scene.name}: {d.objective}", objective_label=OBJECTIVE_LABELS[d.objective])
+                     title=f"{scene.name}: {d.objective}", objective_label=problem.objective.axis_label())
     ctx.say(f"final {d.objective} {figures['objective']:.6g}, volume {figures['volume']:.4f} "
             f"(constraint {figures['constraint']:.2e}), non-discreteness "
             f"{figures['non_discreteness_percent']:.1f} %, {figures['iterations']} iterations, "

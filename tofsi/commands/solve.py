@@ -11,11 +11,11 @@ with the ``stage`` of a run's ``result.json`` that run's final figures
 
 from __future__ import annotations
 
-import numpy as np
 
 from tofsi import quality
 from tofsi.coupled import CoupledModel, continuation
 from tofsi.errors import InputError
+from tofsi.fields import Picture, state_points
 from tofsi.output import write_json, write_vtu
 from tofsi.plotting import plot_mesh, plot_nodal
 from tofsi.problem import Problem
@@ -23,38 +23,31 @@ from tofsi.provenance import solve_settings
 
 
 def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None:
-    """VTU (biquadratic cells: the Q2 velocity exactly) and PNG pictures of a state."""
+    """VTU (biquadratic cells: the Q2 velocity exactly) with every active field's arrays, and
+    the pictures each field asks for (:meth:`tofsi.fields.Field.pictures`)."""
     mesh = model.mesh
-    X = mesh.points if state.x is None else mesh.points + state.mesh_displacement
-    to9 = mesh.edges9                                   # Q1 fields -> Q2 nodes (bilinear)
+    X = state_points(model, state)
     point_data = {}
-    if state.w is not None:
-        v = state.w[:model.flow.n_velocity].reshape(-1, 2)
-        p = state.w[model.flow.n_velocity:]
-        point_data.update(velocity=v, pressure=p[to9].mean(axis=1))
-    if state.u is not None:
-        point_data["structure_displacement"] = state.u.reshape(-1, 2)[to9].mean(axis=1)
-    if state.x is not None:
-        point_data["mesh_displacement"] = state.mesh_displacement[to9].mean(axis=1)
-    cell_data = {"density": state.rho, "region": mesh.region,
-                 "skewness": quality.skewness(X, mesh.quads)}
+    for field in model.fields:
+        point_data.update(field.point_data(model, state))
+    cell_data = {"density": state.rho, "region": mesh.region, "skewness": quality.skewness(X, mesh.quads)}
     write_vtu(ctx.path(f"{name}.vtu"), mesh.points9(X), {"quad9": mesh.quads9},
               point_data=point_data, cell_data=cell_data)
-    solid = state.rho > 0.5
-    if state.w is not None:
-        speed = np.linalg.norm(v[: mesh.n_nodes], axis=1)
-        plot_nodal(ctx.path(f"{name}_velocity.png"), X, mesh.quads, speed, grey=solid,
-                   title=f"{model.scene.name}: velocity magnitude", label="|v| [m/s]")
-        plot_nodal(ctx.path(f"{name}_pressure.png"), X, mesh.quads, p, grey=solid,
-                   title=f"{model.scene.name}: pressure", label="p [Pa]", cmap="coolwarm")
-    if state.u is not None:
-        U = state.u.reshape(-1, 2)
-        scale = 0.1 * np.ptp(mesh.points, axis=0).max() / max(np.abs(U).max(), 1e-300)
-        scale = min(scale, 1.0) if state.x is not None else scale
-        moved = mesh.points + scale * U
-        plot_mesh(ctx.path(f"{name}_deformed.png"), moved, mesh.quads, state.rho,
-                  title=f"{model.scene.name}: structure displacement (magnified {scale:.3g} times)",
-                  label="density rho (0 fluid, 1 solid)", cmap="Greys", vmin=0, vmax=1)
+    for field in model.fields:
+        for picture in field.pictures(model, state):
+            draw(ctx.path(f"{name}_{picture.name}.png"), picture, X, mesh, state.rho,
+                 f"{model.scene.name}: {picture.title}")
+
+
+def draw(path, picture: Picture, X, mesh, rho, title: str) -> None:
+    """A field's picture: nodal values on the mesh at ``X`` (solid greyed), or a mesh coloured
+    per element."""
+    if picture.kind == "nodal":
+        plot_nodal(path, X, mesh.quads, picture.values, grey=rho > 0.5, title=title, label=picture.label,
+                   cmap=picture.cmap)
+    else:
+        plot_mesh(path, picture.points, mesh.quads, picture.values, title=title, label=picture.label,
+                  cmap=picture.cmap, vmin=picture.vmin, vmax=picture.vmax)
 
 
 def design_densities(scene, args):
@@ -77,7 +70,7 @@ def design_densities(scene, args):
         raise InputError("--stage", stage_arg, f"allowed: 0 to {n_stages - 1} or last")
     problem = Problem(scene)                         # reads and checks design.initial
     params = continuation(scene, stage)
-    problem.set_stage(beta=params.beta, penalty=params.penalty, q=params.brinkman_q, coupling=params.coupling)
+    problem.set_stage(params)
     gamma = problem.initial_design()
     about = {"design": d.initial or "uniform", "stage": stage, "beta": params.beta,
              "penalty": params.penalty, "brinkman_q": params.brinkman_q}
@@ -86,8 +79,7 @@ def design_densities(scene, args):
 
 def run(scene, args, ctx) -> dict:
     model, rho, about, problem = design_densities(scene, args)
-    fields = ", ".join(name for name, on in (("flow", model.flow), ("structure", model.structure),
-                                             ("mesh motion", model.motion)) if on is not None)
+    fields = ", ".join(field.title for field in model.fields)
     ctx.say(f"{scene.name}: {model.mesh.n_elements} quads; solving {fields}"
             + (f" ({scene.coupled.method} two-way coupling)" if model.two_way else ""))
     if about:
@@ -114,14 +106,13 @@ def run(scene, args, ctx) -> dict:
     flow = state.reports.get("flow")
     if flow:
         figures["newton_iterations"] = flow["newton_iterations"]
-    for key in ("pressure_drop", "dissipated_power", "drag", "lift", "compliance", "max_displacement",
-                "volume"):
+    for key in [k for field in model.fields for k in field.summary] + ["objective", "volume"]:
         if key in figures:
             ctx.say(f"  {key.replace('_', ' '):18s} {figures[key]:.6g}")
     ctx.begin()
     with ctx.step("writing solution.vtu and pictures"):
         write_state(ctx, model, state)
-    write_json(ctx.path("solve.json"), {"figures": figures, "settings": {**solve_settings(scene), **about},
+    write_json(ctx.path("solve.json"), {"figures": figures, "settings": {**solve_settings(model), **about},
                                         "reports": state.reports})
     ctx.say("wrote " + ", ".join(ctx.written))
     figures["outputs"] = list(ctx.written)

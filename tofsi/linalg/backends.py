@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -96,8 +97,10 @@ def available() -> list[str]:
 
 
 def resolve(name: str | None = None) -> str:
-    """The backend a name stands for (``None``: the configured default; ``auto``: the fastest)."""
-    name = _default["name"] if name is None else name
+    """The backend a name stands for (``None``: ``TOFSI_LINEAR_SOLVER`` if set, else the
+    configured default; ``auto``: the fastest)."""
+    if name is None:
+        name = os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or _default["name"]
     if name == "auto":
         return available()[0]
     why = unavailable(name)

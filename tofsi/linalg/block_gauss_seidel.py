@@ -47,14 +47,17 @@ class BlockGaussSeidel:
     A : the square matrix, unknowns stacked field after field
     sizes : the fields' sizes, in the order of ``A``'s unknowns (and of the sweep)
     orderings : per field, a fill-reducing permutation of its unknowns (or None)
+    direct : ``(matrix, perm) -> DirectSolver`` on the model's backend (default: the process's)
     """
 
     exact = False
     symmetric = False
     setup_iterations = 10      # factorizing the diagonal blocks costs about 10 GMRES iterations
 
-    def __init__(self, A: sp.spmatrix, sizes, orderings=None, tol: float = 1e-10, max_iter: int = 200):
+    def __init__(self, A: sp.spmatrix, sizes, orderings=None, tol: float = 1e-10, max_iter: int = 200,
+                 direct=None):
         A = sp.csr_matrix(A)
+        self.direct = direct or (lambda M, perm=None: DirectSolver(M, perm=perm))
         self.A, self.tol, self.max_iter, self.shape = A, tol, max_iter, A.shape
         self.starts = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
         if self.starts[-1] != A.shape[0] or A.shape[0] != A.shape[1]:
@@ -63,7 +66,7 @@ class BlockGaussSeidel:
         self.diagonal, self.lower, self.lower_t = [], [], []
         for i, (a, b) in enumerate(zip(self.starts[:-1], self.starts[1:])):
             rows = A[a:b]
-            self.diagonal.append(DirectSolver(rows[:, a:b], perm=orderings[i]))
+            self.diagonal.append(self.direct(rows[:, a:b], perm=orderings[i]))
             self.lower.append(rows[:, :a].tocsr())                     # A_ij, j < i
             self.lower_t.append(A[b:, a:b].T.tocsr())                  # (A_ji)^T, j > i: M^T's upper part
         self.memory_bytes = sum(d.memory_bytes for d in self.diagonal)
@@ -109,7 +112,7 @@ class BlockGaussSeidel:
             return self._gmres(self.A, b, self._sweep)
         except NumericalError as err:
             log.warning("%s; factorizing the whole matrix instead", err)
-            return DirectSolver(self.A).solve(b)
+            return self.direct(self.A).solve(b)
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
         """``A^-T b``, as :meth:`solve`."""
@@ -117,4 +120,4 @@ class BlockGaussSeidel:
             return self._gmres(self.A.T.tocsr(), b, self._sweep_transpose)
         except NumericalError as err:
             log.warning("%s; factorizing the whole matrix instead", err)
-            return DirectSolver(self.A).solve_transpose(b)
+            return self.direct(self.A).solve_transpose(b)

@@ -1,7 +1,8 @@
 """A reusable sparse direct solve of ``A x = b`` and ``A^T x = b`` on any backend.
 
 The backend (``superlu``, ``pardiso``, ``petsc``; ``None``: the configured
-default, see :func:`tofsi.linalg.backends.set_default`) analyses the
+default, see :func:`tofsi.linalg.backends.set_default`; a model passes its own,
+:class:`tofsi.linalg.LinearAlgebra`) analyses the
 pattern of ``A`` once (cached across matrices with the same pattern) and
 factorizes its values; :meth:`DirectSolver.solve` and
 :meth:`DirectSolver.solve_transpose` (for adjoints) then cost two triangular
@@ -40,12 +41,15 @@ class DirectSolver:
     exact = True               # a RecyclingSolver preconditions GMRES with these factors
 
     def __init__(self, A: sp.spmatrix, coords: np.ndarray | None = None, perm: np.ndarray | None = None,
-                 backend: str | None = None):
+                 backend: str | None = None, threads: int | None = None):
         A = canonical_csr(A)
         if perm is None and coords is not None:
             perm = nested_dissection(coords)
         self.A, self.perm = A, perm
         self.backend = get_backend(backend if A.dtype == np.float64 else "superlu")
+        self.threads = threads
+        if threads:                                      # the model's own thread count
+            self.backend.set_threads(threads)
         t0 = time.perf_counter()
         if A.shape[0] >= PROGRESS_SIZE:
             log.info("factorizing %d unknowns (%d non-zeros) with %s ...", A.shape[0], A.nnz, self.backend.name)
@@ -59,6 +63,8 @@ class DirectSolver:
 
     def _apply(self, b: np.ndarray, trans: str, rtol: float | None = None) -> np.ndarray:
         A = self.A if trans == "N" else self.A.T
+        if self.threads:
+            self.backend.set_threads(self.threads)
         x = self.factorization.solve(b, trans)
         goal = max(self.refine_tol, rtol or 0.0) * np.linalg.norm(b)
         for _ in range(2):                               # iterative refinement

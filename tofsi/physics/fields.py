@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofsi.blocks import ExplicitLinearization, FieldBlock, Linearization
-from tofsi.linalg import DirectSolver, RecyclingSolver
+from tofsi.linalg import RecyclingSolver
 from tofsi.physics.flow import Flow
 from tofsi.physics.mesh_motion import MeshMotion
 from tofsi.physics.structure import Structure
@@ -304,7 +304,8 @@ class MotionLinearization(Linearization):
 
     def _solver_for(self):
         if self._solver is None:
-            self._solver = RecyclingSolver(lambda A: DirectSolver(A, perm=self.motion.base.ordering))
+            motion = self.motion
+            self._solver = RecyclingSolver(lambda A: motion.linear_algebra.direct(A, perm=motion.base.ordering))
         return self._solver
 
     def solve(self, b):

@@ -37,7 +37,9 @@ from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.geometry import map_points, physical_gradients
 from tofsi.interpolation import Brinkman
 from tofsi.iteration import backtracking, forcing_term
-from tofsi.linalg import DirectSolver, RecyclingSolver, nested_dissection
+from tofsi.kept import Kept, input_key
+from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
+from tofsi.linalg.backends import resolve
 from tofsi.physics.flow_boundary import FlowBoundary
 from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_element,
                                         velocity_fields)
@@ -78,11 +80,14 @@ class Flow:
         sides instead of the channel conditions (closed box; verification problems)
     body_force : optional ``f(points (E, G, 2)) -> (E, G, 2)`` [N/m^3] on the current
         configuration (complex-safe, so shape derivatives include it)
+    linear_algebra : the model's :class:`~tofsi.linalg.LinearAlgebra` (default: superlu, or the
+        process default)
     """
 
     def __init__(self, mesh, settings, stokes: bool = False, boundary_velocity=None,
-                 body_force=None):
+                 body_force=None, linear_algebra: LinearAlgebra | None = None):
         self.mesh, self.settings = mesh, settings
+        self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.body_force = body_force
         self.density = 0.0 if stokes else settings.density
         self.symmetric = settings.outlet == "traction-free"
@@ -97,9 +102,10 @@ class Flow:
         self.values[:2 * n9] = self.boundary.values
         self.bc = DirichletOperator(self.dofs, self.dofs, self.size, np.concatenate(fixed))
         self._perm = None
-        self._shape_kept = None           # (key, (R_e, dR_e/dXe)) of the last shape evaluation
-        self._elements_kept = None        # (key, (R_e, K_e)) of the last Jacobian evaluation
-        self._residuals_kept = None       # (key, R_e) of the last residual-only evaluation
+        self.kept_shape = Kept()          # (R_e, dR_e/dXe) of the last shape evaluation
+        self.kept_elements = Kept()       # (R_e, K_e) of the last Jacobian evaluation
+        self.kept_residuals = Kept()      # R_e of the last residual-only evaluation
+        self.kept_scale = Kept()          # the force scale of the last mesh position and density
         self._shape_pattern = None        # CSR pattern of F_x
 
     # ---- geometry and state -------------------------------------------------------
@@ -145,35 +151,34 @@ class Flow:
         """``F(w; x, rho)`` (size,), unconstrained (boundary rows included)."""
         return assemble_vector(self.dofs, self.element_residuals(w, x, rho, params, density), self.size)
 
-    def _inputs(self, w, x, rho, params, density):
-        """``(rho, density, key)``: the defaults filled in, and the key of every input of an
-        element evaluation on the mesh moved by ``x``."""
-        rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+    def evaluation_key(self, w, x, rho, params, density=None) -> tuple:
+        """The key of an element evaluation at ``(w, x, rho, params)``: every input it reads,
+        the flow's own settings included (its density -- the Reynolds continuation's --, the
+        outlet form, the settings record, the body force), so a kept value can never be another
+        point's. ``rho = None`` is all fluid; ``density = None`` the flow's own."""
+        rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho)
         density = self.density if density is None else density
-        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(),
-               params, density, self.symmetric, self.settings, self.body_force)
-        return rho, density, key
+        return input_key(None if w is None else np.asarray(w), None if x is None else np.asarray(x), rho,
+                         params, density, self.symmetric, self.settings, self.body_force)
 
     def element_jacobians(self, w, x=None, rho=None, params=None, density=None):
         """``(R_e (E, 22), K_e (E, 22, 22))`` on the mesh moved by ``x`` (``density`` defaults to
-        the flow's). The last evaluation is kept, keyed by every input: the fluid load's ``S_w``
-        at a converged state reuses the Jacobian of the Newton solve's last residual check."""
-        rho, density, key = self._inputs(w, x, rho, params, density)
-        if self._elements_kept is None or self._elements_kept[0] != key:
-            self._elements_kept = (key, self.element_residual(w, x, rho, density=density, params=params))
-        return self._elements_kept[1]
+        the flow's). The last evaluation is kept (read-only), keyed by every input: the fluid
+        load's ``S_w`` at a converged state reuses the Jacobian of the Newton solve's last check."""
+        return self.kept_elements.get(
+            self.evaluation_key(w, x, rho, params, density),
+            lambda: self.element_residual(w, x, rho, density=density, params=params))
 
     def element_residuals(self, w, x=None, rho=None, params=None, density=None) -> np.ndarray:
         """``R_e (E, 22)`` on the mesh moved by ``x``: the kept Jacobian evaluation's when its
         inputs are these, else a residual-only evaluation, itself kept (keyed by every input), so
         a line-search trial's flow residual and the fluid load at the same state share one."""
-        rho, density, key = self._inputs(w, x, rho, params, density)
-        if self._elements_kept is not None and self._elements_kept[0] == key:
-            return self._elements_kept[1][0]
-        if self._residuals_kept is None or self._residuals_kept[0] != key:
-            Re, _ = self.element_residual(w, x, rho, jacobian=False, density=density, params=params)
-            self._residuals_kept = (key, Re)
-        return self._residuals_kept[1]
+        key = self.evaluation_key(w, x, rho, params, density)
+        both = self.kept_elements.peek(key)
+        if both is not None:
+            return both[0]
+        return self.kept_residuals.get(
+            key, lambda: self.element_residual(w, x, rho, jacobian=False, density=density, params=params)[0])
 
     def jacobian(self, w, x=None, rho=None, density=None, params=None):
         """``F_w`` as the constrained CSR matrix (identity on fixed dofs), ``F`` and the
@@ -186,11 +191,11 @@ class Flow:
         derivative (:func:`~tofsi.physics.fluid_shape.fluid_shape`), or with a body force the
         complex step through :meth:`element_residual`. The last evaluation is kept, keyed by
         every input (the flow's ``F_x`` and the fluid load's ``S_x`` share it)."""
+        return self.kept_shape.get(self.evaluation_key(w, x, rho, params),
+                                   lambda: self._shape_elements(w, x, rho, params))
+
+    def _shape_elements(self, w, x, rho, params):
         rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
-        key = (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(),
-               params, self.density, self.symmetric, self.settings, self.body_force)
-        if self._shape_kept is not None and self._shape_kept[0] == key:
-            return self._shape_kept[1]
         Xe = self.corners(x)
         if self.body_force is None:
             ve, pe = self.split(w)
@@ -200,7 +205,6 @@ class Flow:
             values = (self.element_residual(w, None, rho, jacobian=False, Xe=Xe, params=params)[0],
                       corner_derivatives(lambda Xc: self.element_residual(w, None, rho, jacobian=False, Xe=Xc,
                                                                           params=params)[0], Xe))
-        self._shape_kept = (key, values)
         return values
 
     def shape_partial(self, w, x=None, rho=None, params=None) -> sp.csr_matrix:
@@ -241,7 +245,7 @@ class Flow:
         """The LU of a flow Jacobian (nested dissection, pressures last per block)."""
         if self._perm is None:
             self._perm = nested_dissection(self.grid(), last=self.pressure_dofs)
-        return DirectSolver(A, perm=self._perm)
+        return self.linear_algebra.direct(A, perm=self._perm)
 
     def solve(self, x=None, rho=None, w0=None, params=None) -> tuple[np.ndarray, FlowReport]:
         """Steady flow on the mesh moved by ``x`` with densities ``rho``; raises on failure."""
@@ -276,11 +280,10 @@ class Flow:
         """``|F|`` of the all-fluid state holding only the boundary values: the force scale the
         Newton tolerance is relative to (per mesh position and density; independent of the
         design, so a design's solve never depends on which design came first)."""
-        key = (None if x is None else np.asarray(x).tobytes(), density)
-        if getattr(self, "_scale", (None,))[0] != key:          # alpha(None) = alpha_min: q-free
+        def scale():                                           # alpha(None) = alpha_min: q-free
             r = np.linalg.norm(self.bc.homogenize(self.residual(self.initial(), x, None, density)))
-            self._scale = (key, max(r, 1e-14 * max(1.0, abs(self.settings.inlet_velocity))))
-        return self._scale[1]
+            return max(r, 1e-14 * max(1.0, abs(self.settings.inlet_velocity)))
+        return self.kept_scale.get(self.evaluation_key(None, x, None, None, density), scale)
 
     @staticmethod
     def backward_error(J, w, r) -> float:

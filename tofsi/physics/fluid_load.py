@@ -46,6 +46,7 @@ from tofsi.blocks import Continuation
 from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.geometry import physical_gradients, physical_hessians
 from tofsi.fem.shapes import Q2_NODES, shape_functions
+from tofsi.kept import Kept, input_key
 from tofsi.physics.fluid_kernel import N1, N2, POINTS, WEIGHTS, brinkman_partial
 from tofsi.physics.fluid_shape import mass_shape, stress_load_shape
 
@@ -107,9 +108,9 @@ class FluidForce:
         self.dofs = element_dofs(flow.mesh.quads, 2)                           # (E, 8)
         self.size = 2 * flow.mesh.n_nodes
         self.free = (~flow.bc.is_fixed[flow.dofs[:, :18]]).astype(float)       # (E, 18)
-        self._operators = None            # (x bytes, B) of the stress-divergence form
-        self._last = None                 # (key, element values) of the last evaluation
-        self._shape_last = None           # (key, df_e/dXe) of the last shape evaluation
+        self.kept_operators = Kept()      # B of the stress-divergence form on the last mesh
+        self.kept_values = Kept()         # element loads (and partials) of the last evaluation
+        self.kept_shape = Kept()          # df_e/dXe of the last shape evaluation
         self._fluid_pattern = None        # CSR patterns of df/dw and df/dx (made on first use)
         self._shape_pattern = None
 
@@ -127,11 +128,10 @@ class FluidForce:
 
     # ---- element kernels ---------------------------------------------------------------------
     def stress_operators(self, x=None) -> np.ndarray:
-        """``B_e`` on the mesh moved by ``x`` (kept while ``x`` does not change)."""
-        key = None if x is None else np.asarray(x).tobytes()
-        if self._operators is None or self._operators[0] != key:
-            self._operators = (key, load_operator(self.flow.corners(x), self.flow.settings.viscosity))
-        return self._operators[1]
+        """``B_e`` on the mesh moved by ``x`` (kept, keyed by ``x`` and the viscosity)."""
+        mu = self.flow.settings.viscosity
+        return self.kept_operators.get(input_key(None if x is None else np.asarray(x), mu),
+                                       lambda: load_operator(self.flow.corners(x), mu))
 
     def _reaction(self, w, x, rho, params, Xe, partials: bool):
         """Element loads ``(E, 8)`` of the reaction form on the mesh moved by ``x`` (corners ``Xe``),
@@ -163,30 +163,33 @@ class FluidForce:
         drho = brinkman.derivative(rho)[:, None] * dalpha + self.weight_derivative(rho, params)[:, None] * dpsi
         return fe, dw, drho
 
-    def _inputs(self, w, x, rho, params):
-        """``(rho, key)``: the densities (None: all fluid) and the key of every input of an
-        element evaluation (the form and the flow are fixed when the load is built)."""
-        rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
-        return rho, (np.asarray(w).tobytes(), None if x is None else np.asarray(x).tobytes(), rho.tobytes(), params)
+    def evaluation_key(self, w, x, rho, params, partials: bool) -> tuple:
+        """Every input of an element evaluation: the flow's (:meth:`Flow.evaluation_key`, its
+        settings and density included), the load's form and whether the partials are asked for."""
+        return self.flow.evaluation_key(w, x, rho, params) + (self.form, partials)
 
     def elements(self, w, x, rho, params=None, partials: bool = False):
         """``(f_e (E, 8), df_e/dw_e (E, 8, 22) or None, df_e/drho_e (E, 8) or None)`` at ``(w, x, rho)``.
 
-        The last evaluation is kept, keyed by every input (``w``, ``x``, ``rho``, ``params``).
+        The last evaluation is kept (read-only), keyed by every input; an evaluation with the
+        partials also serves a later one without them.
         """
-        rho, key = self._inputs(w, x, rho, params)
-        if self._last is not None and self._last[0] == key and (self._last[1][1] is not None or not partials):
-            return self._last[1]
+        if not partials:
+            both = self.kept_values.peek(self.evaluation_key(w, x, rho, params, True))
+            if both is not None:
+                return both
+        return self.kept_values.get(self.evaluation_key(w, x, rho, params, partials),
+                                    lambda: self._elements(w, x, rho, params, partials))
+
+    def _elements(self, w, x, rho, params, partials: bool):
+        rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
         if self.form == "reaction":
-            values = self._reaction(w, x, rho, params, self.flow.corners(x), partials)
-        else:
-            B = self.stress_operators(x)
-            Bw = np.einsum("eab,eb->ea", B, w[self.flow.dofs])
-            psi = self.weight(rho, params)
-            values = (Bw * psi[:, None], B * psi[:, None, None] if partials else None,
-                      Bw * self.weight_derivative(rho, params)[:, None] if partials else None)
-        self._last = (key, values)
-        return values
+            return self._reaction(w, x, rho, params, self.flow.corners(x), partials)
+        B = self.stress_operators(x)
+        Bw = np.einsum("eab,eb->ea", B, w[self.flow.dofs])
+        psi = self.weight(rho, params)
+        return (Bw * psi[:, None], B * psi[:, None, None] if partials else None,
+                Bw * self.weight_derivative(rho, params)[:, None] if partials else None)
 
     # ---- global quantities ----------------------------------------------------------------------
     def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
@@ -219,14 +222,14 @@ class FluidForce:
         Reaction form: ``d rows_e = free ((alpha - alpha_min - psi alpha) d(A_e w_e) + psi dR_e)``
         with the flow's ``dR_e/dXe`` (:meth:`~tofsi.physics.flow.Flow.shape_elements`, shared
         with ``F_x``); stress-divergence form: ``psi_e d(B_e w_e)``. The last evaluation is
-        kept, keyed by every input (``S_x`` and its transposed product at one state share it).
+        kept (read-only), keyed by every input (``S_x`` and its transposed product at one state
+        share it).
         """
-        rho, key = self._inputs(w, x, rho, params)
-        if self._shape_last is None or self._shape_last[0] != key:
-            self._shape_last = (key, self._shape_elements(w, x, rho, params))
-        return self._shape_last[1]
+        return self.kept_shape.get(self.evaluation_key(w, x, rho, params, False),
+                                   lambda: self._shape_elements(w, x, rho, params))
 
     def _shape_elements(self, w, x, rho, params):
+        rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
         fl = self.flow
         psi = self.weight(rho, params)
         ve, pe = fl.split(w)

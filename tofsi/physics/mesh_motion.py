@@ -32,7 +32,10 @@ import scipy.sparse as sp
 import movers
 from movers.base import MotionProblem, MoveResult
 from tofsi.band import find_band
+from tofsi.kept import Kept, input_key
 from tofsi.layers import element_layers, stiffening_field
+from tofsi.linalg import LinearAlgebra
+from tofsi.linalg.backends import resolve
 from tofsi.mesh import FLUID, SOLID
 from tofsi.physics.indicators import DensityLayers, solid_indicator
 
@@ -44,10 +47,12 @@ LAYERS_SHOWN = 10          # element layers counted (and written to outputs) at 
 class MeshMotion:
     """A scene's mover applied to its mesh, with the maps to and from the other fields."""
 
-    def __init__(self, mesh, scene, motion_size: float | None = None):
+    def __init__(self, mesh, scene, motion_size: float | None = None, linear_algebra=None):
         """``motion_size``: the structure's largest displacement [m] when known beforehand
-        (mesh-motion studies), for the automatic band width (``mover.band``)."""
+        (mesh-motion studies), for the automatic band width (``mover.band``);
+        ``linear_algebra``: the model's :class:`~tofsi.linalg.LinearAlgebra`."""
         self.mesh = mesh
+        self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.mover = movers.mover_class(scene.mover.name)(scene.mover.options)
         self.blended = scene.has_design
         boundary = mesh.boundary_nodes
@@ -76,8 +81,10 @@ class MeshMotion:
             fixed = np.union1d(fixed, self.band.edge_nodes)
             self.follows = np.setdiff1d(self.follows, self.band.outside_nodes)
         self.moving = moving
-        self.base = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving])
-        self._kept = None                         # (rho key, {problem, blend}) of the last densities
+        self.base = MotionProblem.from_mesh(mesh, moving, fixed, factors[moving],
+                                            linear_algebra=self.linear_algebra)
+        self.kept_problem = Kept()                # the problem of the last densities
+        self.kept_blend = Kept()                  # and its blend, built on first use
 
     @property
     def path_dependent(self) -> bool:
@@ -90,31 +97,30 @@ class MeshMotion:
         return self.base.fixed_dofs
 
     # ---- maps between fields ------------------------------------------------------
+    def density_key(self, rho) -> tuple:
+        """The key of what depends on the densities alone (everything else it reads -- mesh,
+        mover, layers, band -- is fixed when the motion is built)."""
+        return input_key(None if rho is None or not self.blended else np.asarray(rho))
+
     def problem(self, rho=None) -> MotionProblem:
-        """The mover's problem for densities ``rho`` (blended form) or the fixed regions."""
-        return self._kept_for(rho)["problem"]
+        """The mover's problem for densities ``rho`` (blended form) or the fixed regions. The last
+        densities' is kept, keyed by ``rho``, so a Newton's residual checks at one design do not
+        rebuild the indicator and the density layers each time."""
+        return self.kept_problem.get(self.density_key(rho), lambda: self._problem(rho))
+
+    def _problem(self, rho) -> MotionProblem:
+        if not self.blended:
+            return self.base
+        s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
+        if self.density_layers is None:
+            return self.base.with_data(blend=s)
+        return self.base.with_data(blend=s, stiffening=self.density_layers.factors(rho)[self.moving])
 
     def _at_density(self, rho):
-        """``(problem, blend)`` for densities ``rho``, for the residual-form maps."""
-        kept = self._kept_for(rho)
-        if "blend" not in kept:
-            kept["blend"] = self.mover.blend(kept["problem"])
-        return kept["problem"], kept["blend"]
-
-    def _kept_for(self, rho) -> dict:
-        """What depends on the densities alone: the problem (and, once asked for, its blend).
-        The last densities' are kept, keyed by ``rho`` (everything else they depend on is fixed
-        when the motion is built), so a Newton's residual checks at one design do not rebuild
-        the indicator, the density layers and the blend's reference stiffness each time."""
-        key = None if rho is None or not self.blended else np.asarray(rho, dtype=float).tobytes()
-        if self._kept is None or self._kept[0] != key:
-            problem = self.base
-            if self.blended:
-                s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
-                problem = (self.base.with_data(blend=s) if self.density_layers is None else
-                           self.base.with_data(blend=s, stiffening=self.density_layers.factors(rho)[self.moving]))
-            self._kept = (key, {"problem": problem})
-        return self._kept[1]
+        """``(problem, blend)`` for densities ``rho``, for the residual-form maps (the blend's
+        reference stiffness kept like the problem, built on first use)."""
+        problem = self.problem(rho)
+        return problem, self.kept_blend.get(self.density_key(rho), lambda: self.mover.blend(problem))
 
     def target(self, u: np.ndarray) -> np.ndarray:
         """The motion the mover is given ``(n, 2)``: the structure's where nodes follow it, else 0."""

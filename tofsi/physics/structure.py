@@ -27,7 +27,8 @@ from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.interpolation import SIMP
-from tofsi.linalg import DirectSolver, nested_dissection
+from tofsi.linalg import DirectSolver, LinearAlgebra, nested_dissection
+from tofsi.linalg.backends import resolve
 from tofsi.mesh import DESIGN, SOLID
 from tofsi.physics.fluid_load import FluidForce
 
@@ -58,11 +59,13 @@ class Structure:
     """Linear elasticity of the unified domain, loaded by a :class:`~tofsi.physics.flow.Flow`.
 
     ``params`` arguments default to the settings' load exponent and the
-    default SIMP exponent (:class:`~tofsi.blocks.Continuation`).
+    default SIMP exponent (:class:`~tofsi.blocks.Continuation`); ``linear_algebra`` is the
+    model's backend (default: superlu, or the process default).
     """
 
-    def __init__(self, mesh, settings, flow=None):
+    def __init__(self, mesh, settings, flow=None, linear_algebra: LinearAlgebra | None = None):
         self.mesh, self.settings, self.flow = mesh, settings, flow
+        self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.force = None if flow is None else FluidForce(flow, settings.load)
         self.E0 = settings.youngs_modulus
         self.Emin = settings.e_min_ratio * settings.youngs_modulus
@@ -95,7 +98,7 @@ class Structure:
 
     def factorize(self, rho, params=None) -> DirectSolver:
         """The LU of ``K_s(rho)`` (nested-dissection ordering)."""
-        return DirectSolver(self.stiffness(rho, params), perm=self.perm)
+        return self.linear_algebra.direct(self.stiffness(rho, params), perm=self.perm)
 
     # ---- fluid load --------------------------------------------------------------
     def load(self, w, x=None, rho=None, params=None) -> np.ndarray:

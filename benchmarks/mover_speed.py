@@ -15,8 +15,8 @@ and prints the ratios the project's targets are stated in
 8 degree rotation of the foil, which every mover survives at every size (the
 unstiffened linear mover inverts the corner elements of the finest mesh, hence chi = 1).
 
-    python benchmarks/movers.py                      # full table, ~1e4 .. 3e5 nodes
-    python benchmarks/movers.py --refine 1 2 --repeat 1
+    python benchmarks/mover_speed.py                      # full table, ~1e4 .. 3e5 nodes
+    python benchmarks/mover_speed.py --refine 1 2 --repeat 1
 """
 
 from __future__ import annotations
@@ -30,9 +30,6 @@ import sys
 import time
 from pathlib import Path
 
-# This file is named like the ``movers`` package; running it as a script puts
-# its folder first on sys.path, which would shadow the package.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "foil_in_channel.toml"
 REFINE = [2.2, 3.8, 6.9, 12.0]          # about 1e4, 3e4, 1e5, 3e5 nodes

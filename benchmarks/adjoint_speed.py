@@ -22,13 +22,14 @@ structure and mesh), and a two-way design iteration (forward + adjoint) /
 the one-way iteration of the same scene, mesh and design <= 2.5. Each case
 runs in a fresh process.
 
-    python benchmarks/adjoint.py
-    python benchmarks/adjoint.py --sizes 0.05 0.025 --two-way-sizes 0.025 --repeat 1
+    python benchmarks/adjoint_speed.py
+    python benchmarks/adjoint_speed.py --sizes 0.05 0.025 --two-way-sizes 0.025 --repeat 1
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import subprocess
@@ -36,9 +37,6 @@ import sys
 import time
 from pathlib import Path
 
-# This file is named like the ``adjoint`` package (and its folder holds ``movers.py``);
-# running it as a script puts its folder first on sys.path, which would shadow both.
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "beam_in_channel_optimization.toml"
 SIZES = [0.05, 0.025, 0.0167, 0.0111]            # ~800 .. 16 000 elements (180 x 90)
@@ -119,7 +117,7 @@ def run_fsi_case(h: float, coupling: str) -> dict:
     import tofsi
 
     problem = tofsi.Problem(tofsi.load_scene(FSI_SCENE, [f"mesh.h_min={h}", f"mesh.h_max={h}"]))
-    problem.set_stage(beta=problem.scene.design.beta[-1], coupling=coupling)
+    problem.set_stage(dataclasses.replace(problem.params, beta=problem.scene.design.beta[-1], coupling=coupling))
     rng = np.random.default_rng(0)
     return time_iteration(problem, post_design(problem, rng), rng)
 

@@ -1,0 +1,75 @@
+"""The linear algebra a model uses: its sparse direct backend and threads, as one record.
+
+Every model (:class:`tofsi.coupled.CoupledModel`, a mesh-motion study) owns a
+:class:`LinearAlgebra` built from its scene's ``[solver]`` table and hands it
+to the physics it builds; each factorization is made on that backend with
+those threads. Nothing process-wide changes when a model is built, so two
+models with different ``[solver]`` tables can live side by side. The
+environment variables ``TOFSI_LINEAR_SOLVER``, ``TOFSI_THREADS`` and
+``TOFSI_BLAS_THREADS`` win over the scene (to run a benchmark or the tests on
+another backend), as documented in ``docs/parallel.md``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+log = logging.getLogger(__name__)
+
+
+def environment_int(name: str, value: int) -> int:
+    """``value``, unless the environment variable ``name`` holds a whole number."""
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return value
+    try:
+        return max(int(text), 0)
+    except ValueError:
+        log.warning("ignoring %s=%r (not an integer)", name, text)
+        return value
+
+
+def solver_threads(requested: int = 0) -> int:
+    """Threads for the sparse direct backend (0: one per core; ``TOFSI_THREADS`` wins)."""
+    n = environment_int("TOFSI_THREADS", requested)
+    return n if n > 0 else (os.cpu_count() or 1)
+
+
+@dataclass(frozen=True)
+class LinearAlgebra:
+    """backend : a concrete backend name (``superlu``, ``pardiso``, ``petsc``); threads :
+    threads of the direct backend (PARDISO's; 0: leave the backend as it is); blas_threads :
+    OpenBLAS threads while the model computes (0: as the environment says)."""
+
+    backend: str = "superlu"
+    threads: int = 0
+    blas_threads: int = 0
+
+    @classmethod
+    def from_settings(cls, settings) -> "LinearAlgebra":
+        """From a ``[solver]`` table (:class:`tofsi.settings.SolverSettings`): ``auto`` resolved
+        to the fastest installed backend, an unavailable one refused (InputError naming why),
+        ``threads = 0`` one per core; the environment's overrides applied."""
+        from tofsi.linalg.backends import resolve
+        name = os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or settings.linear_solver
+        return cls(resolve(name), solver_threads(settings.threads),
+                   environment_int("TOFSI_BLAS_THREADS", settings.blas_threads))
+
+    def direct(self, A, perm=None):
+        """A :class:`~tofsi.linalg.DirectSolver` of ``A`` on this backend."""
+        from tofsi.linalg.direct import DirectSolver
+        return DirectSolver(A, perm=perm, backend=self.backend, threads=self.threads)
+
+    @contextmanager
+    def blas(self):
+        """Within the block NumPy's and SciPy's OpenBLAS use ``blas_threads`` threads (restored
+        afterwards; nothing changes for 0)."""
+        if self.blas_threads <= 0:
+            yield
+            return
+        from threadpoolctl import threadpool_limits
+        with threadpool_limits(limits=self.blas_threads, user_api="blas"):
+            yield
