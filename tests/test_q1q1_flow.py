@@ -8,54 +8,33 @@ meshes). Taylor-Hood gives 3, 2, 2 on the same problems (tests/test_flow.py).
 
 import numpy as np
 import pytest
-import scipy.sparse.linalg as spla
 
 from flow_cases import Manufactured, rates
-from tofsi.fem.assembly import assemble_vector, element_dofs
-from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.geometry import map_points, physical_gradients
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
 from tofsi.mesh import StructuredQuadMesh
-from tofsi.physics.fluid_elements import EqualOrder
+from tofsi.physics.flow import Flow
+from tofsi.settings import FluidSettings
 
 PI = np.pi
 
 
-def solve(mesh, fixed_velocity, values, alpha, density, mu, symmetric=False, x=None, force=None, pin=None):
-    """Newton on the Q1/Q1 system: velocity dofs ``fixed_velocity`` held at ``values`` (3n,),
-    pressure dofs ``pin`` (node indices) held at their ``values``."""
-    n = mesh.n_nodes
-    dofs = np.hstack([element_dofs(mesh.quads, 2), 2 * n + mesh.quads])
-    P = mesh.points if x is None else mesh.points + x
-    Xe = P[mesh.quads]
-    f = None if force is None else force(map_points(Xe, EqualOrder.POINTS))
-    bc = DirichletOperator(dofs, dofs, 3 * n, np.concatenate([fixed_velocity, 2 * n + np.asarray(pin)]))
-    w = np.where(bc.is_fixed, values, 0.0)
-    a = np.full(mesh.n_elements, float(alpha))
-    for _ in range(20):
-        we = w[dofs]
-        Re, Ke = EqualOrder.residual(Xe, we[:, :8].reshape(-1, 4, 2), we[:, 8:], a, density, mu, symmetric, f)
-        R = bc.homogenize(assemble_vector(dofs, Re, 3 * n))
-        if np.linalg.norm(R) < 1e-11 * max(1.0, np.abs(Re).max()):
-            return w, dofs, Xe
-        w = w + spla.spsolve(bc.matrix(Ke).tocsc(), -R)
-    raise AssertionError(f"no convergence: |R| = {np.linalg.norm(R):.3e}")
-
-
 def box(n, exact, density, symmetric=False, moved=False):
+    """The manufactured flow on the unit square (closed box, the exact velocity on its sides),
+    with the gradient or the strain-rate viscous form, on the reference or an ALE-moved mesh."""
     mesh = StructuredQuadMesh(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1))
     x = None
     if moved:                                          # a smooth interior motion; the boundary stays
         X = mesh.points
         bump = np.sin(PI * X[:, 0]) * np.sin(PI * X[:, 1])
         x = 0.08 * np.column_stack([bump * np.cos(2 * X[:, 1]), 0.6 * bump * np.sin(3 * X[:, 0])])
-    sides = mesh.boundary_nodes
-    values = np.zeros(3 * mesh.n_nodes)
-    values[:2 * mesh.n_nodes].reshape(-1, 2)[sides] = exact.velocity(mesh.points[sides])
-    values[2 * mesh.n_nodes] = exact.pressure(mesh.points[0])
-    fixed = np.concatenate([2 * sides, 2 * sides + 1])
-    return solve(mesh, fixed, values, exact.alpha, density, exact.mu, symmetric, x, exact.force, pin=[0])
+    settings = FluidSettings(element="q1q1", density=density, viscosity=exact.mu, alpha_min=exact.alpha,
+                             alpha_max=max(exact.alpha, 1.0),
+                             outlet="traction-free" if symmetric else "zero-pressure")
+    flow = Flow(mesh, settings, stokes=density == 0.0, boundary_velocity=exact.velocity, body_force=exact.force)
+    w, _ = flow.solve(x=x)
+    return w, flow.dofs, flow.corners(x)
 
 
 def errors(w, dofs, Xe, exact):
@@ -106,21 +85,19 @@ def test_navier_stokes_manufactured_solution_converges_at_q1q1_rates():
 def test_poiseuille_flow_converges_at_second_order(density):
     """A parabola is not in the Q1 space, so unlike Taylor-Hood Q1/Q1 is not exact: the nodal
     velocity converges at rate 2 and the pressure drop at rate >= 1 (PSPG's inconsistency at
-    the inlet, where the dropped viscous term of the strong residual is not zero)."""
+    the inlet, where the dropped viscous term of the strong residual is not zero). The outlet
+    is topFlow's: p = 0 and no tangential velocity."""
     mu, U, H, L = 0.7, 1.3, 1.0, 3.0
     velocity, drop, hs = [], [], []
     for n in (8, 16, 32):
         mesh = StructuredQuadMesh(np.linspace(0, L, 3 * n + 1), np.linspace(0, H, n + 1))
-        N, P = mesh.n_nodes, mesh.points
-        left, right = mesh.side_nodes("left"), mesh.side_nodes("right")
-        walls = np.concatenate([left, mesh.side_nodes("bottom"), mesh.side_nodes("top")])
-        values = np.zeros(3 * N)
-        values[2 * left] = 4 * U * P[left, 1] * (H - P[left, 1]) / H**2
-        fixed = np.concatenate([2 * walls, 2 * walls + 1, 2 * right + 1])   # outlet: v_y = 0, p = 0
-        w, _, _ = solve(mesh, fixed, values, 0.0, density, mu, pin=right)
-        v = w[:2 * N].reshape(-1, 2)
+        settings = FluidSettings(element="q1q1", density=density, viscosity=mu, inlet_velocity=U,
+                                 outlet="fixed-pressure", parallel_outflow=True)
+        flow = Flow(mesh, settings, stokes=density == 0.0)
+        w, _ = flow.solve()
+        P, v = mesh.points, flow.corner_velocity(w)
         velocity.append(np.abs(v[:, 0] - 4 * U * P[:, 1] * (H - P[:, 1]) / H**2).max())
-        drop.append(abs(w[2 * N + left].mean() - 8 * mu * U * L / H**2))
+        drop.append(abs(flow.figures(w)["pressure_drop"] - 8 * mu * U * L / H**2))
         hs.append(1.0 / n)
     assert np.all(np.abs(rates(velocity, hs) - 2.0) < 0.05), velocity
     assert velocity[-1] < 3e-3 * U

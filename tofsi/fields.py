@@ -7,8 +7,8 @@ its physics module plus its entry here (or in your own module):
 * ``tables`` -- the scene tables holding its settings (registered in
   :data:`~tofsi.registry.SCENE_TABLES`; provenance, ``--resume`` and the scene
   reference read them from there);
-* ``memory(grid)`` -- its unknowns and their LU fill for the memory guard
-  (:mod:`tofsi.memory`), from the mesh's size alone;
+* ``memory(grid, scene)`` -- its unknowns and their LU fill for the memory guard
+  (:mod:`tofsi.memory`), from the mesh's size and the scene's settings alone;
 * ``build(model)`` -- its physics object; ``block(model, two_way)`` -- its
   :class:`~tofsi.blocks.FieldBlock` (the coupled model orders and solves the
   blocks; the checkpoint, the adjoint and ``check-gradients`` follow);
@@ -115,7 +115,7 @@ class Field:
     def active(self, scene, command: str = "solve") -> bool:
         raise NotImplementedError
 
-    def memory(self, grid: GridSize) -> Memory:
+    def memory(self, grid: GridSize, scene) -> Memory:
         raise NotImplementedError
 
     def build(self, model):
@@ -135,7 +135,8 @@ class Field:
 
 
 class FlowEntry(Field):
-    """``w``: Taylor-Hood Navier-Stokes or Stokes flow with Brinkman friction."""
+    """``w``: Navier-Stokes or Stokes flow with Brinkman friction (Taylor-Hood, or stabilized
+    equal order with ``fluid.element = "q1q1"``)."""
 
     name, title, tables = "w", "flow", ("fluid",)
     summary = ("pressure_drop", "dissipated_power", "drag", "lift")
@@ -143,7 +144,9 @@ class FlowEntry(Field):
     def active(self, scene, command="solve"):
         return scene.effects.fluid != "none" and command not in MOTION_ONLY
 
-    def memory(self, grid):
+    def memory(self, grid, scene):
+        if scene.fluid.element == "q1q1":
+            return Memory(3 * grid.nodes, "flow-q1q1", 2.6e3)
         return Memory(2 * grid.nodes9 + grid.nodes, "flow", 8.6e3)
 
     def build(self, model):
@@ -168,13 +171,14 @@ class FlowEntry(Field):
         if state.w is None:
             return {}
         flow = model.flow
-        return {"velocity": state.w[:flow.n_velocity].reshape(-1, 2),
+        v = state.w[:flow.n_velocity].reshape(-1, 2)
+        return {"velocity": on_q2_nodes(model.mesh, v) if flow.element.degree == 1 else v,
                 "pressure": on_q2_nodes(model.mesh, state.w[flow.n_velocity:])}
 
     def pictures(self, model, state):
         if state.w is None:
             return []
-        speed = np.linalg.norm(state.w[:model.flow.n_velocity].reshape(-1, 2)[:model.mesh.n_nodes], axis=1)
+        speed = np.linalg.norm(model.flow.corner_velocity(state.w), axis=1)
         return [Picture("velocity", "velocity magnitude", "|v| [m/s]", speed),
                 Picture("pressure", "pressure", "p [Pa]", state.w[model.flow.n_velocity:], cmap="coolwarm")]
 
@@ -188,7 +192,7 @@ class StructureEntry(Field):
     def active(self, scene, command="solve"):
         return scene.effects.structure != "none" and command not in MOTION_ONLY
 
-    def memory(self, grid):
+    def memory(self, grid, scene):
         return Memory(2 * grid.nodes, "q1-vector", 0.0)
 
     def build(self, model):
@@ -239,7 +243,7 @@ class MotionEntry(Field):
             return True
         return e.coupling == "two-way" and e.fluid != "none" and e.structure != "none"
 
-    def memory(self, grid):
+    def memory(self, grid, scene):
         return Memory(2 * grid.nodes, "q1-vector", 2.15e3)
 
     def build(self, model):

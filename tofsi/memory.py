@@ -31,7 +31,8 @@ BASE_BYTES = 0.15 * GB          # interpreter, NumPy/SciPy, the scene (measured 
 BYTES_PER_FACTOR_ENTRY = 21.0   # 12 stored + the factorization's working space, fitted to tofsi
                                 # solve at 4005, 16200, 36315 elements (SuperLU), with the flow
                                 # field's 8.6 kB per element
-FILL = {"flow": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured 12.6-13.9 / 9.1
+FILL = {"flow": 14.0, "flow-q1q1": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured
+                                                             # 12.6-13.9 (Taylor-Hood) / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
 
 
@@ -65,7 +66,7 @@ def estimate(scene, command: str = "solve", backend: str = "superlu") -> Estimat
     unknowns, entries, per_element = {}, {}, 0.0
     for field in FIELDS:
         if field.active(scene, command):
-            need = field.memory(grid)
+            need = field.memory(grid, scene)
             unknowns[field.title] = need.unknowns
             entries[field.title] = factor_entries(need.unknowns, need.fill)
             per_element += need.bytes_per_element

@@ -34,6 +34,7 @@ from tofsi.blocks import State
 from tofsi.coupled import continuation
 from tofsi import quality
 from tofsi.errors import InputError, NumericalError
+from tofsi.oc import oc_step
 from tofsi.output import atomic_write, write_csv, write_json
 from tofsi.resume import check_resume, identity, read_checkpoint
 
@@ -228,20 +229,21 @@ class Optimizer:
             else:                                     # each stage starts within the volume bound
                 self.run_stage = StageRun(stage, p.feasible(gamma))
             last_stage = stage == n_stages - 1
-            gamma = self._run_stage(remaining if last_stage else min(remaining, d.stage_iterations))
+            budget = remaining if last_stage else min(remaining, d.stage_iterations)
+            gamma = self._run_oc_stage(budget, last_stage) if s.algorithm == "OC" else self._run_stage(budget)
         return self.finish(gamma)
 
     def _converged(self, stage: int) -> bool:
         """Stop a stage once the design settles: after ``MIN_STAGE`` evaluations, the largest
         change below ``tol_change`` twice in a row, or the relative objective change below
-        ``tol_objective`` three times in a row."""
+        ``tol_objective`` ``stall_iterations`` times in a row (topFlow's rule with 5 and 1e-3)."""
         h = [it for it in self.history if it.stage == stage]
-        if len(h) < MIN_STAGE:
-            return False
         s = self.settings
+        if len(h) < max(MIN_STAGE, s.stall_iterations + 1):
+            return False
         if all(it.change < s.tol_change for it in h[-2:]):
             return True
-        f = [it.objective for it in h[-4:]]
+        f = [it.objective for it in h[-(s.stall_iterations + 1):]]
         return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
 
     def _run_stage(self, max_evaluations: int) -> np.ndarray:
@@ -277,6 +279,37 @@ class Optimizer:
             log.info("stage %d converged after %d evaluations", run.stage, len(run.log))
             self.stop_reason = "converged"
             return run.last[0].copy()
+
+    def _run_oc_stage(self, max_evaluations: int, last_stage: bool) -> np.ndarray:
+        """A stage of optimality-criteria steps (:func:`tofsi.oc.oc_step`) in topFlow's order:
+        evaluate, stop if the last stage has settled, step, and end an earlier stage after the
+        step (its last design is the next stage's first, evaluated with the next parameters)."""
+        run = self.run_stage
+        gamma = run.start
+        for _ in range(max_evaluations):
+            entry = self._evaluate(gamma)
+            converged = self._converged(run.stage)
+            if converged and last_stage:
+                break
+            gamma = self._oc_step(gamma, entry)
+            if converged:
+                break
+        else:
+            self.stop_reason = "max_iter"
+            return gamma
+        log.info("stage %d converged after %d evaluations", run.stage, len(run.log))
+        self.stop_reason = "converged"
+        return gamma
+
+    def _oc_step(self, gamma: np.ndarray, entry: dict) -> np.ndarray:
+        """One OC step from an evaluation: the volume bound's gradient (its filter and projection
+        included) is the phase's volume weight ``dV``."""
+        p, d = self.problem, self.design
+        solid = d.constraint == "solid"
+        dg = np.asarray(entry["dg"])[0]
+        dvolume = np.maximum(dg if solid else -dg, 1e-300)
+        return oc_step(gamma, entry["df"], dvolume, p.phase_fraction, d.volume_fraction, solid,
+                       self.settings.move_limit)
 
     def _write_history(self) -> None:
         rows = [asdict(h) for h in self.history]

@@ -14,7 +14,9 @@ The flow's unknowns are the velocity ``2 k + i`` on the element type's velocity 
 along a side, fine-grid positions for the nested-dissection ordering), the element kernel
 with a body force at its quadrature points, its friction partial ``dR_e/dalpha_e``, its
 shape derivatives, and the velocity shape functions ``N`` ``(G, k)`` at the kernel's
-points (objectives and loads integrate with them).
+points (objectives and loads integrate with them), the Q1 shape functions at the velocity
+nodes (``to_corners``: the fluid load tests the velocity rows with them) and, where
+written, analytic shape derivatives of the fluid load's operators and of the dissipation.
 """
 
 from __future__ import annotations
@@ -25,10 +27,28 @@ from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.geometry import physical_gradients
 from tofsi.fem.shapes import Q1_NODES, Q2_NODES, shape_functions
 from tofsi.physics import fluid_kernel, fluid_kernel_q1q1
-from tofsi.physics.fluid_shape import fluid_shape
+from tofsi.physics.fluid_shape import dissipation_shape, fluid_shape, mass_shape, stress_load_shape
 
 
-class TaylorHood:
+class FluidElement:
+    """What both element types share: the velocity fields at the kernel's points."""
+
+    degree: int
+    POINTS: np.ndarray
+    WEIGHTS: np.ndarray
+    N: np.ndarray
+
+    @classmethod
+    def velocity_fields(cls, Xe, ve):
+        """Basis gradients ``(E, G, k, 2)``, weights ``w det J`` ``(E, G)``, ``v`` ``(E, G, 2)`` and
+        ``grad v`` ``(E, G, 2, 2)`` (``L_ij = dv_i/dx_j``) of element velocities ``ve`` ``(E, k, 2)``."""
+        grad, det = physical_gradients(Xe, cls.degree, cls.POINTS)
+        v = np.matmul(cls.N, ve)
+        L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)
+        return grad, det * cls.WEIGHTS, v, L
+
+
+class TaylorHood(FluidElement):
     """Q2/Q1 (the default)."""
 
     name = "q2q1"
@@ -37,6 +57,11 @@ class TaylorHood:
     POINTS, WEIGHTS = fluid_kernel.POINTS, fluid_kernel.WEIGHTS
     N = fluid_kernel.N2                                            # (G, 9)
     to_corners, _ = shape_functions(1, Q2_NODES)                   # (9, 4): M_a at the velocity nodes
+    # analytic shape derivatives of the fluid load's operators and of the dissipation functional
+    # (None: the complex step)
+    mass_shape = staticmethod(mass_shape)
+    stress_load_shape = staticmethod(stress_load_shape)
+    dissipation_shape = staticmethod(dissipation_shape)
 
     # ---- velocity nodes of a structured mesh --------------------------------------------
     @staticmethod
@@ -93,7 +118,7 @@ class TaylorHood:
         return residual(Xe), corner_derivatives(residual, Xe)
 
 
-class EqualOrder:
+class EqualOrder(FluidElement):
     """Stabilized Q1/Q1 (topFlow's and TOFLUX's element)."""
 
     name = "q1q1"
@@ -102,6 +127,7 @@ class EqualOrder:
     POINTS, WEIGHTS = fluid_kernel_q1q1.POINTS, fluid_kernel_q1q1.WEIGHTS
     N = fluid_kernel_q1q1.N1                                       # (G, 4)
     to_corners, _ = shape_functions(1, Q1_NODES)                   # (4, 4): the identity
+    mass_shape = stress_load_shape = dissipation_shape = None
 
     @staticmethod
     def quads(mesh) -> np.ndarray:
