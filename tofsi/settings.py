@@ -156,6 +156,12 @@ class DesignSettings:
     constraint: str = option("solid", choices=("solid", "fluid"),
                              doc="the phase whose fraction volume_fraction bounds (fluid: flow problems)")
     filter_radius: float = option(0.045, gt=0, doc="density filter radius [m]")
+    filter_kernel: str = option("linear", choices=("linear", "circular"),
+                                doc="filter weights at distance d: linear, r - d (a hat); circular, "
+                                    "sqrt(1 - d^2 / r^2) (TOFLUX's)")
+    filter_fixed: bool = option(False, doc="the filter also averages the fixed elements within its "
+                                           "radius at their values (1 solid, 0 fluid), as TOFLUX: the "
+                                           "design next to a fixed solid starts partly solid")
     eta: float = option(0.5, gt=0, lt=1, doc="projection threshold")
     beta: tuple[float, ...] = option((1.0, 2.0, 4.0, 8.0, 16.0), ge=0, le=1000,
                                      doc="projection sharpness schedule (one value per stage)")
@@ -174,7 +180,9 @@ class DesignSettings:
                                            "empty: effects.coupling throughout")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
-                                  "(path relative to the working directory); empty: uniform")
+                                  "(path relative to the working directory), or a number in [0, 1] "
+                                  "(that uniform design, e.g. \"1e-4\" as TOFLUX); empty: uniform at "
+                                  "the volume bound")
 
     def __post_init__(self):
         if not self.beta:
