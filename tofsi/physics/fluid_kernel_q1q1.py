@@ -47,9 +47,21 @@ from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.geometry import physical_gradients
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
+from tofsi.kept import Kept, input_key
 
 POINTS, WEIGHTS = gauss_square(3)
 N1, _ = shape_functions(1, POINTS)            # (G, 4)
+_BASIS = Kept()                               # the last configuration's basis, keyed by its corners
+
+
+def basis(Xe):
+    """Physical gradients ``(E, G, 4, 2)`` and weights ``w det J`` ``(E, G)`` of corners ``Xe``;
+    the last configuration's are kept (keyed by the corners' values: a one-way flow's Newton
+    steps, line search and adjoint all see the same mesh)."""
+    def build():
+        grad, det = physical_gradients(Xe, 1, POINTS)
+        return grad, det * WEIGHTS
+    return _BASIS.get(input_key(np.asarray(Xe)), build)
 
 
 def diagonal_squared(Xe):
@@ -76,8 +88,8 @@ class _Fields:
     """The quantities at the Gauss points shared by the residual and its derivatives."""
 
     def __init__(self, Xe, ve, pe, alpha, density, viscosity, symmetric, force):
-        grad, det = physical_gradients(Xe, 1, POINTS)              # (E, G, 4, 2), (E, G)
-        self.grad, self.w = grad, det * WEIGHTS                      # (E, G)
+        grad, w = basis(Xe)                                          # (E, G, 4, 2), (E, G)
+        self.grad, self.w = grad, w
         self.v = np.matmul(N1, ve)                                   # (E, G, 2)
         self.L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)    # L_ij = dv_i/dx_j (E, G, 2, 2)
         self.p = np.matmul(pe, N1.T)                                 # (E, G)
@@ -138,12 +150,12 @@ def _jacobian(F, alpha, density, viscosity, symmetric):
     if symmetric:                                                                  # mu dN_a/dx_k dN_b/dx_i
         Kvv += mu * np.swapaxes(M, 2, 4)
     if density:                                                                    # rho test_a L_ik N_b
-        TL = (test[..., :, None] * L.reshape(E, G, 1, 4)).reshape(E, G, 16)
-        conv = np.matmul(TL.transpose(0, 2, 1), N1).reshape(E, 4, 2, 2, 4)          # [a, i, k, b]
+        LN = (L.reshape(E, G, 4, 1) * N1[None, :, None, :]).reshape(E, G, 16)       # L_ik N_b
+        conv = np.matmul(test.transpose(0, 2, 1), LN).reshape(E, 4, 2, 2, 4)       # [a, i, k, b]
         Kvv += density * conv.transpose(0, 1, 2, 4, 3)
-        # SUPG test's derivative: tau_s int dN_a/dx_k N_b r_i  -> [a, k, i, b]
-        Gr = (grad[..., :, :, None] * (F.r * w[..., None])[:, :, None, None, :]).reshape(E, G, 16)
-        C = np.matmul(Gr.transpose(0, 2, 1), N1).reshape(E, 4, 2, 2, 4)
+        # SUPG test's derivative: tau_s int dN_a/dx_k r_i N_b  -> [a, k, i, b]
+        rN = ((F.r * w[..., None])[..., :, None] * N1[None, :, None, :]).reshape(E, G, 8)   # r_i N_b
+        C = np.matmul(grad.reshape(E, G, 8).transpose(0, 2, 1), rN).reshape(E, 4, 2, 2, 4)
         Kvv += F.tau_s[:, None, None, None, None] * C.transpose(0, 1, 3, 4, 2)
         # tau_s's derivative: int (v . grad N_a) r_i  x  density dtau_p/dv_(b,k)
         Kvv += density * F.adv_r[:, :, :, None, None] * F.dtau_dv[:, None, None, None, :]
