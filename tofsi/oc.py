@@ -48,7 +48,10 @@ def oc_step(gamma: np.ndarray, df: np.ndarray, dvolume: np.ndarray, fraction, bo
     if fraction(design(np.inf)) > bound:             # out of reach within the move limit:
         return design(np.inf)                        # the nearest design, every y at its lower end
     l1, l2 = 0.0, (factor.sum() / (y.size * bound)) ** (1.0 / exponent)
-    while fraction(design(l2)) > bound:              # widen the bracket if topFlow's is short
+    # widen topFlow's bracket where it is short (the design at its end breaks the bound); where
+    # no design variable is clipped that design meets the bound exactly, so round-off in the
+    # fraction decides nothing
+    while fraction(design(l2)) > bound * (1.0 + 1e-9):
         l1, l2 = l2, 2.0 * l2
     new = design(l2)
     while (l2 - l1) / (l1 + l2) > TOLERANCE:        # the last midpoint's design, as topFlow
