@@ -32,7 +32,7 @@ BYTES_PER_FACTOR_ENTRY = 21.0   # 12 stored + the factorization's working space,
                                 # solve at 4005, 16200, 36315 elements (SuperLU), with the flow
                                 # field's 8.6 kB per element
 FILL = {"flow": 14.0, "flow-q1q1": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured
-                                                             # 12.6-13.9 (Taylor-Hood) / 9.1
+                                                             # 12.6-13.9 (Taylor-Hood), 12.3-14.5 (Q1/Q1) / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
 
 
