@@ -56,6 +56,12 @@ PROBLEMS = {
 }
 
 
+LABELS = {"q1q1-oc": "Q1/Q1, OC (the publisher's)", "q2q1-oc": "Q2/Q1, OC", "q2q1-mma": "Q2/Q1, MMA",
+          "q2q1-mma-tofsi": "Q2/Q1, MMA, tofsi's settings", "q1q1-mma": "Q1/Q1, MMA",
+          "q1q1-pressure": "Q1/Q1, pressure load (TOFLUX's)", "q2q1-reaction": "Q2/Q1, reaction load (tofsi's)",
+          "q2q1-pressure": "Q2/Q1, pressure load", "q1q1-reaction": "Q1/Q1, reaction load"}
+
+
 def folder(output: Path, problem: str, variant: str) -> Path:
     return output / problem.replace(" ", "_").replace(",", "") / variant
 
@@ -104,9 +110,13 @@ def objective_of(p, rho) -> float:
     return float(p.objective.value(p.model, state))
 
 
-def analyse(problem: str, variant: str, output: Path) -> dict:
+def analyse(problem: str, variant: str, output: Path) -> dict | None:
+    """A finished run's figures (None when the variant has not been run)."""
     from tofsi.optimize import non_discreteness
-    result = run(problem, variant, output)
+    path = folder(output, problem, variant) / "result.json"
+    if not path.is_file():
+        return None
+    result = json.loads(path.read_text())
     p = final_problem(problem, variant)
     gamma = np.load(folder(output, problem, variant) / "design.npy")
     rho = p.densities(gamma)
@@ -142,7 +152,9 @@ def pictures(problem: str, variants, output: Path, out: Path) -> Path:
         ax.set_aspect("equal")
         ax.set_xticks([])
         ax.set_yticks([])
-        ax.set_title(variant, fontsize=9)
+        f = json.loads((folder(output, problem, variant) / "result.json").read_text())["objective"]
+        symbol = "phi" if p.objective.name.startswith("dissipation") else p.objective.name
+        ax.set_title(f"{LABELS[variant]}\n{symbol} = {f:.5g}", fontsize=8)
     path = out / f"{problem.replace(' ', '_').replace(',', '')}.png"
     save(fig, path)
     return path
@@ -161,7 +173,7 @@ def main() -> None:
             for variant in variants:
                 run(problem, variant, args.output)
             continue
-        rows = [analyse(problem, v, args.output) for v in variants]
+        rows = [r for r in (analyse(problem, v, args.output) for v in variants) if r is not None]
         print(f"\n{problem} (published {PROBLEMS[problem][1]}, {PROBLEMS[problem][2]} iterations)")
         print("| variant | objective | vs published | grey | thresholded | iterations | time |")
         print("|---|---|---|---|---|---|---|")
@@ -169,12 +181,13 @@ def main() -> None:
             vs = "-" if np.isnan(r["vs_published_percent"]) else f"{r['vs_published_percent']:+.2f} %"
             print(f"| {r['variant']} | {r['objective']:.5g} | {vs} | {r['non_discreteness_percent']:.1f} % | "
                   f"{r['thresholded']:.5g} | {r['iterations']} | {r['wall_time_s']:.0f} s |")
-        if problem == "TOFLUX wall":
+        if problem == "TOFLUX wall" and len(rows) == len(variants):
             print("\nthresholded designs (rows) scored by each model (columns)")
             for r in cross_scores(problem, args.output):
                 print(" | ".join([r["design"]] + [f"{r[v]:.5g}" for v in variants]))
-        if args.pictures:
-            print("picture:", pictures(problem, list(variants), args.output, args.pictures))
+        if args.pictures and rows:
+            done = [r["variant"] for r in rows]
+            print("picture:", pictures(problem, done, args.output, args.pictures))
 
 
 if __name__ == "__main__":
