@@ -105,7 +105,13 @@ def check_blocks(system, state, seed: int = 0, cd_tol: float = 1e-6) -> list[dic
             rows.append(check_row(f"{block.symbol or block.name}_{field}", eps, rem, rates, relative_error(cd, slope),
                                   abs(slope), cd_tol))
         if rho_bar is not None or block.has_residual:
-            d = 0.01 * rng.normal(size=rho.size)          # densities in (0, 1): small steps
+            # steps that keep densities inside (0, 1) (scaled by 4 rho (1 - rho): the fixed 0/1
+            # elements stay, where interpolations may end in a pole or a kink -- a Brinkman q of
+            # 5e-6 puts alpha's pole at rho = 1 + q, a SIMP exponent between 1 and 2 a kink at 0)
+            noise = rng.normal(size=rho.size)
+            d = 0.01 * noise * 4.0 * rho * (1.0 - rho)
+            if not np.any(d):                                 # a 0/1 design: small steps anyway
+                d = 0.01 * noise
             slope = float((np.zeros(rho.size) if rho_bar is None else rho_bar) @ d)
             g = lambda r: phi(rho_=r, lam=lam)
             eps, rem, rates = _scalar_taylor(g, rho, slope, d)

@@ -9,7 +9,11 @@ recommended default marked. Studies:
 * flow     -- drag and pressure drop versus time as the mesh is refined,
               Stokes and Navier-Stokes, on the beam in a channel;
 * coupling -- partitioned versus monolithic two-way coupling versus tolerance;
-* gradient -- adjoint versus finite differences (error and time per gradient).
+* gradient -- adjoint versus finite differences (error and time per gradient);
+* elements -- stabilized Q1/Q1 against Taylor-Hood Q2/Q1 at equal element count and at equal
+              time: topFlow's objective of two fixed 0/1 designs (straight double pipes, a
+              quarter-annulus bend) and the foil's drag, each in a fresh process (time, peak
+              memory), against the finest Taylor-Hood mesh.
 
 ``--docs`` writes ``docs/accuracy_vs_time.md`` and its figures (``docs/img/accuracy``);
 otherwise results go to ``--output``. About two minutes on two cores:
@@ -185,7 +189,75 @@ def gradient_study(quick: bool) -> list[dict]:
     return rows
 
 
-STUDIES = {"movers": mover_study, "flow": flow_study, "coupling": coupling_study, "gradient": gradient_study}
+# ---- elements -------------------------------------------------------------------------
+# (problem, scene, overrides, the fixed design's fluid indicator or None, quantity, meshes, reference mesh)
+ELEMENT_PROBLEMS = {
+    "double pipe": ("topflow_double_pipe", ["effects.fluid=stokes"], "pipes", "dissipation-strain",
+                    [24, 48, 96, 192], 240),
+    "pipe bend": ("topflow_pipe_bend", ["effects.fluid=stokes"], "annulus", "dissipation-strain",
+                  [20, 40, 80, 160], 240),
+    "foil drag": ("foil_in_channel", ["effects.fluid=stokes", "effects.structure=none", "fluid.alpha_max=1e8"],
+                  None, "drag", [0.05, 0.025, 0.0125, 0.00625], 0.003125),
+}
+ELEMENT_DEFAULT = {"double pipe": 96, "pipe bend": 80, "foil drag": 0.0125}
+
+
+def element_case(problem: str, element: str, size) -> dict:
+    """One forward solve of ``problem`` with ``element`` on mesh ``size`` (elements per unit
+    length, or the foil's h_min): its quantity, solve time and element count."""
+    import tofsi
+    from tofsi.coupled import CoupledModel
+    from tofsi.objectives.dissipation_strain import StrainDissipation
+    scene_name, overrides, design, quantity, _, _ = ELEMENT_PROBLEMS[problem]
+    mesh = ([f"mesh.h_min={size}", f"mesh.h_max={4 * size}"] if design is None
+            else [f"mesh.h_min={1 / size}", f"mesh.h_max={1 / size}"])
+    scene = tofsi.load_scene(SCENES / f"{scene_name}.toml", overrides + mesh + [f"fluid.element={element}"])
+    model = CoupledModel(scene)
+    if design is None:
+        rho = model.densities()
+    else:                                              # rho on the design region from the geometry
+        c = model.mesh.centroids
+        if design == "pipes":
+            fluid = (np.abs(c[:, 1] - 0.25) < 1 / 12) | (np.abs(c[:, 1] - 0.75) < 1 / 12)
+        else:
+            r = np.hypot(c[:, 0], c[:, 1])
+            fluid = (r > 0.7) & (r < 0.9)
+        rho = np.where(fluid, 0.0, 1.0)
+    state, t = timed(model.solve, rho)
+    value = (StrainDissipation().value(model, state) if quantity == "dissipation-strain"
+             else model.figures(state)["drag"])
+    return {"value": value, "time_s": t, "elements": model.mesh.n_elements}
+
+
+def element_study(quick: bool) -> list[dict]:
+    """Each case in a fresh process (its peak memory, VmHWM, is the run's)."""
+    import json
+    import subprocess
+    import sys
+    rows = []
+    for problem, (_, _, _, _, sizes, reference) in ELEMENT_PROBLEMS.items():
+        sizes = sizes[:2] if quick else sizes
+        cases = [(e, s) for s in sizes for e in ("q2q1", "q1q1")] + [("q2q1", reference)]
+        results = {}
+        for element, size in cases:
+            code = ("import json, benchmarks.accuracy_vs_time as b; "
+                    f"r = b.element_case({problem!r}, {element!r}, {size!r}); "
+                    "r['peak_mb'] = [int(l.split()[1]) / 1024 for l in open('/proc/self/status') "
+                    "if l.startswith('VmHWM')][0]; print(json.dumps(r))")
+            out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
+            results[element, size] = json.loads(out.stdout.strip().splitlines()[-1])
+        ref = results["q2q1", reference]["value"]
+        for element, size in cases[:-1]:
+            r = results[element, size]
+            rows.append({"study": "elements", "problem": problem, "element": element, "size": size,
+                         "elements": r["elements"], "value": r["value"], "reference": ref,
+                         "error": abs(r["value"] / ref - 1), "time_s": r["time_s"], "peak_mb": r["peak_mb"],
+                         "default": element == "q2q1" and size == ELEMENT_DEFAULT[problem]})
+    return rows
+
+
+STUDIES = {"movers": mover_study, "flow": flow_study, "coupling": coupling_study, "gradient": gradient_study,
+           "elements": element_study}
 
 
 # ---- report ---------------------------------------------------------------------------
@@ -358,7 +430,50 @@ def report(out: Path, data: Path) -> None:
             lines.append(f"| {r['method']} | {step} | {error} | {r['time_per_gradient_s']:.3g} | "
                          f"{r['time_per_gradient_s'] / adjoint['time_per_gradient_s']:.0f} |")
         lines.append("")
+    if "elements" in results:
+        lines += element_lines(results["elements"], data, rel)
     write_text(out / "accuracy_vs_time.md", "\n".join(lines) + "\n")
+
+
+def element_lines(rows: list[dict], data: Path, rel: Path) -> list[str]:
+    """The elements study: a Pareto plot per problem, the table, and the errors at equal time."""
+    from tofsi.plotting import pareto, plt, save
+    fig, axes = plt.subplots(1, len(ELEMENT_PROBLEMS), figsize=(14, 3.8), dpi=100)
+    for ax, problem in zip(axes, ELEMENT_PROBLEMS):
+        pareto(ax, [r for r in rows if r["problem"] == problem], "time_s", "error", "element",
+               f"{problem}: error vs time (mesh refinement)")
+    save(fig, data / "elements.png")
+    lines = ["## Elements: stabilized Q1/Q1 against Taylor-Hood Q2/Q1", "",
+             "Stokes flow through two fixed 0/1 designs of topFlow's scenes (straight pipes over the "
+             "double pipe's inlets; a quarter annulus 0.7 < r < 0.9 joining the bend's inlet and outlet; "
+             "alpha_max = 2.5e4, topFlow's objective phi) and the foil's drag (alpha_max = 1e8, the "
+             "reaction load), on uniform meshes of n elements per unit length (the foil: graded, h_min "
+             "given), each solve in a fresh process. The error is against Taylor-Hood on the finest mesh "
+             f"({', '.join(f'{p}: {ELEMENT_PROBLEMS[p][5]:g}' for p in ELEMENT_PROBLEMS)}); time is the "
+             "forward solve, memory the process's peak. The star marks the Taylor-Hood default mesh.", "",
+             f"![elements]({rel / 'elements.png'})", "",
+             "| problem | mesh | elements | element | value | error | time [s] | peak memory [MB] |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['problem']} | {r['size']:g} | {r['elements']:.0f} | {r['element']} | "
+                     f"{r['value']:.5g} | {r['error']:.2e} | {r['time_s']:.2f} | {r['peak_mb']:.0f} |")
+    lines.append("")
+    for problem in ELEMENT_PROBLEMS:
+        sel = [r for r in rows if r["problem"] == problem]
+        q1 = sorted((r for r in sel if r["element"] == "q1q1"), key=lambda r: r["time_s"])
+        t1, e1 = np.log([r["time_s"] for r in q1]), np.log([max(r["error"], 1e-16) for r in q1])
+        pairs = []
+        for r in (r for r in sel if r["element"] == "q2q1"):
+            if t1[0] <= np.log(r["time_s"]) <= t1[-1]:     # Q1/Q1's error at this time, on its curve
+                e = float(np.exp(np.interp(np.log(r["time_s"]), t1, e1)))
+                pairs.append(f"{r['time_s']:.2g} s: Taylor-Hood {r['error']:.1e} ({r['elements']:.0f} elements), "
+                             f"Q1/Q1 {e:.1e}")
+        same = [(r, next(q for q in q1 if q["size"] == r["size"])) for r in sel if r["element"] == "q2q1"]
+        ratio = [q["time_s"] / r["time_s"] for r, q in same]
+        lines.append(f"* {problem}: on the same mesh Q1/Q1 takes {min(ratio):.2f}-{max(ratio):.2f} of Taylor-Hood's "
+                     "time; at equal time (Q1/Q1's error interpolated on its refinement curve) "
+                     + ("; ".join(pairs) if pairs else "the curves do not overlap") + ".")
+    return lines + [""]
 
 
 def main() -> None:

@@ -1,5 +1,6 @@
 """Published fluid-topology benchmarks on three meshes: the double pipes of Borrvall & Petersson
-(2003) and of Alexandersen's topFlow (2023), each with its published settings.
+(2003) and of Alexandersen's topFlow (2023) and topFlow's pipe bend, each with its published
+settings (benchmarks/published.py changes one setting at a time on the published mesh).
 
 For every case and mesh the script runs ``tofsi optimize`` on the shipped scene with only the
 element size changed (a finished run in the output folder is reused), then reports the
@@ -36,6 +37,7 @@ CASES = {   # scene: (published value, source, elements per unit length of the t
     "bp_double_pipe_long": (27.64, "Borrvall & Petersson 2003, 150 x 100", (24, 50, 100)),
     "topflow_double_pipe": (22.0956, "topFlow, 102 x 102 Q1/Q1", (30, 54, 102)),
     "topflow_double_pipe_long": (23.5732, "topFlow, 153 x 102 Q1/Q1", (30, 54, 102)),
+    "topflow_pipe_bend": (9.1862, "topFlow, 100 x 100 Q1/Q1", (20, 50, 100)),
     "pipe_bend": (None, "no published value with these settings", (50,)),     # the bottom outlet
 }
 

@@ -1,9 +1,9 @@
 """An independent reference for the fluid's force on a body: the body cut out, no slip on it.
 
-The same channel and mesh as a Brinkman computation, but the solid's elements are removed:
-they contribute nothing, the velocity of every Q2 node they touch is fixed to zero (no slip
-on the body's boundary, its inside inert) and the pressure corners no kept element touches
-are pinned. The force on the body is the residual reaction of its boundary velocity dofs,
+The same channel, mesh and element type as a Brinkman computation, but the solid's elements
+are removed: they contribute nothing, the velocity of every velocity node they touch is fixed
+to zero (no slip on the body's boundary, its inside inert) and the pressure corners no kept
+element touches are pinned. The force on the body is the residual reaction of its boundary velocity dofs,
 
     F_i = -sum_(a on the body's boundary) R_(a i)(w),    R from the kept (fluid) elements,
 
@@ -18,23 +18,22 @@ from scipy.sparse.csgraph import connected_components
 
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
-from tofsi.physics.fluid_kernel import fluid_element
 
 
 class NoSlipReference:
     """Flow of ``flow``'s channel with the elements ``solid`` (E,) bool removed."""
 
     def __init__(self, flow, solid):
-        self.flow, mesh = flow, flow.mesh
+        self.flow, mesh, el = flow, flow.mesh, flow.element
         self.keep = ~np.asarray(solid, dtype=bool)
-        q9, n9 = mesh.quads9, mesh.n_nodes9
-        in_removed = np.zeros(n9, bool)
-        in_removed[q9[~self.keep].ravel()] = True
-        in_kept = np.zeros(n9, bool)
-        in_kept[q9[self.keep].ravel()] = True
-        walls = np.zeros(n9, bool)
+        qv, nv = el.quads(mesh), el.n_nodes(mesh)
+        in_removed = np.zeros(nv, bool)
+        in_removed[qv[~self.keep].ravel()] = True
+        in_kept = np.zeros(nv, bool)
+        in_kept[qv[self.keep].ravel()] = True
+        walls = np.zeros(nv, bool)
         for side in ("left", "right", "bottom", "top"):
-            walls[mesh.side_nodes9(side)] = True
+            walls[el.side_nodes(mesh, side)] = True
         self.boundary = np.flatnonzero(in_removed & in_kept & ~walls)
         removed_dofs = element_dofs(np.flatnonzero(in_removed)[:, None], 2).ravel()
         p_kept = np.zeros(mesh.n_nodes, bool)
@@ -54,8 +53,8 @@ class NoSlipReference:
     def element_residual(self, w, jacobian=True):
         f = self.flow
         ve, pe = f.split(w)
-        Re, Ke = fluid_element(f.corners(), ve, pe, np.zeros(f.mesh.n_elements), f.density,
-                               f.settings.viscosity, f.symmetric, jacobian)
+        Re, Ke = f.element.residual(f.corners(), ve, pe, np.zeros(f.mesh.n_elements), f.density,
+                                    f.settings.viscosity, f.symmetric, None, jacobian)
         k = self.keep[:, None]
         return Re * k, (None if Ke is None else Ke * k[..., None])
 

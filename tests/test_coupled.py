@@ -102,10 +102,10 @@ def test_solid_indicator_is_one_next_to_solid_and_smooth():
 def test_a_mesh_motion_study_never_assembles_a_fluid_matrix_even_when_the_scene_has_a_flow(monkeypatch):
     """``move`` of a scene with a fluid effect moves the mesh without a flow solve; the spy has
     teeth: the ``fsi`` motion of the same kind of study does solve the flow through it."""
-    import tofsi.physics.flow as flow_module
+    import tofsi.physics.fluid_kernel as kernel
     from tofsi.motion import run_move
-    calls, element = [], flow_module.fluid_elements
-    monkeypatch.setattr(flow_module, "fluid_elements", lambda *a, **k: calls.append(1) or element(*a, **k))
+    calls, element = [], kernel.fluid_elements
+    monkeypatch.setattr(kernel, "fluid_elements", lambda *a, **k: calls.append(1) or element(*a, **k))
     scene = load("foil_in_channel", "effects.fluid=navier-stokes", "effects.structure=linear-elastic",
                  "mesh.h_min=0.05", "mesh.h_max=0.1")
     assert scene.effects.fluid == "navier-stokes"

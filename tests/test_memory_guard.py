@@ -24,7 +24,7 @@ SCENE = "examples/scenes/beam_in_channel_optimization.toml"
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.parametrize("extra", [[], ["effects.coupling=two-way", "mover.name=yeoh"]])
+@pytest.mark.parametrize("extra", [[], ["effects.coupling=two-way", "mover.name=yeoh"], ["fluid.element=q1q1"]])
 def test_unknowns_counted_from_the_axes_match_the_built_model(extra):
     """For every field the model builds, the estimate's unknowns (from the mesh axes alone) are
     its block's size; a two-way scene adds the mesh motion."""
@@ -33,7 +33,7 @@ def test_unknowns_counted_from_the_axes_match_the_built_model(extra):
     model = CoupledModel(scene)
     assert est.elements == model.mesh.n_elements
     sizes = {field.title: model.system.by_name[field.name].size for field in model.fields}
-    assert est.unknowns == sizes and len(sizes) == (3 if extra else 2)
+    assert est.unknowns == sizes and len(sizes) == (3 if "effects.coupling=two-way" in extra else 2)
 
 
 def test_the_888k_element_solve_is_refused_in_seconds_with_exit_2(tmp_path, capsys):
@@ -53,20 +53,22 @@ def test_max_memory_option_refuses_a_small_solve(tmp_path, capsys):
     assert status == 2 and "0.0 GB are allowed" in capsys.readouterr().err
 
 
-def test_estimate_within_a_factor_1_5_of_the_measured_peak():
+@pytest.mark.parametrize("element", ["q2q1", "q1q1"])
+def test_estimate_within_a_factor_1_5_of_the_measured_peak(element):
     """One real solve in a fresh process (its peak resident memory, VmHWM: unlike ru_maxrss it
     does not inherit the parent's peak across fork and exec), against the estimate."""
     h = 2.0 / 90
+    overrides = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"fluid.element={element}"]
     code = (
         "import json, re, tofsi; from tofsi.coupled import CoupledModel\n"
-        f"s = tofsi.load_scene({SCENE!r}, ['mesh.h_min={h}', 'mesh.h_max={h}'])\n"
+        f"s = tofsi.load_scene({SCENE!r}, {overrides!r})\n"
         "m = CoupledModel(s); m.solve(m.densities())\n"
         "hwm = re.search(r'VmHWM:\\s+(\\d+) kB', open('/proc/self/status').read()).group(1)\n"
         "print(json.dumps(int(hwm) * 1024))\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                          check=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     measured = json.loads(out.stdout.strip().splitlines()[-1])
-    est = memory.estimate(tofsi.load_scene(SCENE, [f"mesh.h_min={h}", f"mesh.h_max={h}"]), "solve")
+    est = memory.estimate(tofsi.load_scene(SCENE, overrides), "solve")
     assert 1 / 1.5 <= est.peak_bytes / measured <= 1.5, (est.peak_bytes, measured)
 
 

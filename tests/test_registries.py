@@ -198,7 +198,7 @@ class TracerField(Field):
     def active(self, scene, command="solve"):
         return scene.tracer.enabled and scene.effects.fluid != "none" and command not in ("move", "tune")
 
-    def memory(self, grid):
+    def memory(self, grid, scene):
         return Memory(grid.nodes, "q1-vector", 0.0)
 
     def build(self, model):

@@ -3,7 +3,7 @@ iterations (with their pictures) and pass check-gradients; mesh-motion scenes mo
 suite runs each at a coarse mesh (a tenth of the channel's smaller side); the scenes as shipped,
 at their own meshes, run with ``-m slow``.
 
-The two-way scene's structure is soft (E = 5 kPa), so its uniform gray starting design (stage 0:
+The two-way scenes' structures are soft (E = 5 and 1.5 kPa), so their uniform gray starting design (stage 0:
 one-way, beta 1) moves tens of metres in small-strain elasticity: ``solve`` writes the linear
 model's figures (optimize's iteration 0) marked ``physical: false`` with a warning on stderr, in
 solve.json and in run.json saying what to solve instead (--design FILE), and exits 5 unless
@@ -17,6 +17,11 @@ import pytest
 from conftest import ALL_SCENES, load, scene_path
 
 PICTURES = ("convergence.png", "design_0000.png", "design_final.png")
+SOFT = ("beam_in_channel_optimization_fsi", "beam_in_channel_optimization_large")   # gray start: unphysical
+COARSE_EXTRA = {("beam_in_channel_optimization_large", "check-gradients"): ["structure.youngs_modulus=1.5e4"]}
+"""At a tenth of the channel's height per element the large-deformation scene's 1.5 kPa design,
+reached by its one-way stages, cannot be carried two-way (the mesh of 10 x 20 elements folds at
+about 0.6 of the inflow); ten times stiffer it can. As shipped it runs unchanged (slow)."""
 
 
 def commands(scene) -> list[str]:
@@ -45,9 +50,11 @@ def cases():
 def test_shipped_scene_runs_through_the_command_line(name, command, size, cli, tmp_path):
     scene = load(name)
     mesh = coarse(scene) if size == "coarse" else []
+    if size == "coarse":
+        mesh += [a for key in COARSE_EXTRA.get((name, command), []) for a in ("--set", key)]
     extra = ["--set", "optimizer.max_iter=3", "--set", "optimizer.output_every=10"] if command == "optimize" else []
     run = cli(command, str(scene_path(name)), *mesh, "--output", str(tmp_path / "out"), "--json", *extra)
-    unphysical = (name, command) == ("beam_in_channel_optimization_fsi", "solve")
+    unphysical = command == "solve" and name in SOFT
     assert run.returncode == (5 if unphysical else 0), run.stderr
     figures = json.loads(run.stdout)
     assert figures.get("physical", True) is not unphysical

@@ -7,8 +7,8 @@ its physics module plus its entry here (or in your own module):
 * ``tables`` -- the scene tables holding its settings (registered in
   :data:`~tofsi.registry.SCENE_TABLES`; provenance, ``--resume`` and the scene
   reference read them from there);
-* ``memory(grid)`` -- its unknowns and their LU fill for the memory guard
-  (:mod:`tofsi.memory`), from the mesh's size alone;
+* ``memory(grid, scene)`` -- its unknowns and their LU fill for the memory guard
+  (:mod:`tofsi.memory`), from the mesh's size and the scene's settings alone;
 * ``build(model)`` -- its physics object; ``block(model, two_way)`` -- its
   :class:`~tofsi.blocks.FieldBlock` (the coupled model orders and solves the
   blocks; the checkpoint, the adjoint and ``check-gradients`` follow);
@@ -118,7 +118,7 @@ class Field:
     def active(self, scene, command: str = "solve") -> bool:
         raise NotImplementedError
 
-    def memory(self, grid: GridSize) -> Memory:
+    def memory(self, grid: GridSize, scene) -> Memory:
         raise NotImplementedError
 
     def build(self, model):
@@ -138,7 +138,8 @@ class Field:
 
 
 class FlowEntry(Field):
-    """``w``: Taylor-Hood Navier-Stokes or Stokes flow with Brinkman friction."""
+    """``w``: Navier-Stokes or Stokes flow with Brinkman friction (Taylor-Hood, or stabilized
+    equal order with ``fluid.element = "q1q1"``)."""
 
     name, title, tables = "w", "flow", ("fluid",)
     summary = ("pressure_drop", "dissipated_power", "drag", "lift")
@@ -147,7 +148,9 @@ class FlowEntry(Field):
     def active(self, scene, command="solve"):
         return scene.effects.fluid != "none" and command not in MOTION_ONLY
 
-    def memory(self, grid):
+    def memory(self, grid, scene):
+        if scene.fluid.element == "q1q1":       # peaks of a solve at 4005 and 22 578 elements: 182 and
+            return Memory(3 * grid.nodes, "flow-q1q1", 1.0e3)       # 670 MB (estimated 1.34x, 1.04x)
         return Memory(2 * grid.nodes9 + grid.nodes, "flow", 1.0e3)   # with the kernel in chunks (fitted)
 
     def build(self, model):
@@ -172,13 +175,14 @@ class FlowEntry(Field):
         if state.w is None:
             return {}
         flow = model.flow
-        return {"velocity": state.w[:flow.n_velocity].reshape(-1, 2),
+        v = state.w[:flow.n_velocity].reshape(-1, 2)
+        return {"velocity": on_q2_nodes(model.mesh, v) if flow.element.degree == 1 else v,
                 "pressure": on_q2_nodes(model.mesh, state.w[flow.n_velocity:])}
 
     def pictures(self, model, state):
         if state.w is None:
             return []
-        speed = np.linalg.norm(state.w[:model.flow.n_velocity].reshape(-1, 2)[:model.mesh.n_nodes], axis=1)
+        speed = np.linalg.norm(model.flow.corner_velocity(state.w), axis=1)
         return [Picture("velocity", "velocity magnitude", "|v| [m/s]", speed),
                 Picture("pressure", "pressure", "p [Pa]", state.w[model.flow.n_velocity:], cmap="coolwarm")]
 
@@ -193,7 +197,7 @@ class StructureEntry(Field):
     def active(self, scene, command="solve"):
         return scene.effects.structure != "none" and command not in MOTION_ONLY
 
-    def memory(self, grid):
+    def memory(self, grid, scene):
         return Memory(2 * grid.nodes, "q1-vector", 1.0e3)
 
     def build(self, model):
@@ -246,7 +250,7 @@ class MotionEntry(Field):
             return True
         return e.coupling == "two-way" and e.fluid != "none" and e.structure != "none"
 
-    def memory(self, grid):
+    def memory(self, grid, scene):
         return Memory(2 * grid.nodes, "q1-vector", 2.15e3)
 
     def build(self, model):

@@ -37,14 +37,17 @@ class Brinkman:
 
 @dataclass(frozen=True)
 class SIMP:
-    """Modified SIMP: ``E(rho) = Emin + rho^p (E0 - Emin)`` [Pa]."""
+    """Modified SIMP: ``E(rho) = Emin + rho^p (E0 - Emin)`` [Pa]. ``rho^p`` is extended oddly to
+    ``rho < 0`` (``-|rho|^p``; only gradient checks step there), so a non-integer ``p`` (a
+    continued penalty) stays finite and smooth there."""
 
     E0: float
     Emin: float
     p: float = 3.0
 
     def __call__(self, rho):
-        return self.Emin + np.asarray(rho) ** self.p * (self.E0 - self.Emin)
+        rho = np.asarray(rho)
+        return self.Emin + np.sign(rho) * np.abs(rho) ** self.p * (self.E0 - self.Emin)
 
     def derivative(self, rho):
-        return self.p * np.asarray(rho) ** (self.p - 1.0) * (self.E0 - self.Emin)
+        return self.p * np.abs(np.asarray(rho)) ** (self.p - 1.0) * (self.E0 - self.Emin)

@@ -39,7 +39,8 @@ BASE_BYTES = 0.15 * GB          # interpreter, NumPy/SciPy, the scene (measured 
 BYTES_PER_FACTOR_ENTRY = 22.2   # 12 stored + the factorization's working space; fitted to tofsi solve
                                 # at 16 200-129 795 elements (SuperLU); the fields' a_f refitted after
                                 # the fluid kernel ran in chunks (16 200 and 64 980 elements)
-FILL = {"flow": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured 12.6-13.9 / 9.1
+FILL = {"flow": 14.0, "flow-q1q1": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured
+                                                             # 12.6-13.9 (Taylor-Hood), 12.3-14.5 (Q1/Q1) / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
 ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 3.8e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move
                                 # on the iterative path (16 200-64 980 flow elements; 5e3-1.6e5 mesh)
@@ -101,7 +102,7 @@ def estimate(scene, command: str = "solve", backend: str = "superlu", ranks: int
     solves = "move" if command == "study" else command          # a study's points are moves
     for field in FIELDS:
         if field.active(scene, solves):
-            need = field.memory(grid)
+            need = field.memory(grid, scene)
             unknowns[field.title] = need.unknowns
             per_element += need.bytes_per_element
             if iterative:

@@ -63,6 +63,7 @@ from tofsi.blocks import Continuation
 from tofsi.checkpoint import read_stage, write_checkpoint
 from tofsi.coupled import continuation
 from tofsi.errors import InputError, NumericalError
+from tofsi.oc import oc_step
 from tofsi.output import atomic_write, write_csv, write_json
 
 log = logging.getLogger(__name__)
@@ -291,7 +292,8 @@ class Optimizer:
                 self.run_stage = run                  # (a resumed one: its start and scale, replayed)
                 last = stage == d.n_stages - 1 and not pending
                 try:
-                    gamma = self._run_stage(remaining if last else min(remaining, d.stage_iterations))
+                    budget = remaining if last else min(remaining, d.stage_iterations)
+                    gamma = self._run_oc_stage(budget, last) if s.algorithm == "OC" else self._run_stage(budget)
                     previous = params
                 except StageStartFailed as failed:
                     pending += [params, self._bridge(previous, params, len(pending), failed.error)]
@@ -314,14 +316,15 @@ class Optimizer:
     def _converged(self) -> bool:
         """Stop the running stage (or bridge) once the design settles: after ``MIN_STAGE``
         evaluations, the largest change below ``tol_change`` twice in a row, or the relative
-        objective change below ``tol_objective`` three times in a row."""
+        objective change below ``tol_objective`` ``stall_iterations`` times in a row (topFlow's
+        rule with 5 and 1e-3)."""
         h = self.history[self.run_stage.first_row:]
-        if len(h) < MIN_STAGE:
-            return False
         s = self.settings
+        if len(h) < max(MIN_STAGE, s.stall_iterations + 1):
+            return False
         if all(it.change < s.tol_change for it in h[-2:]):
             return True
-        f = [it.objective for it in h[-4:]]
+        f = [it.objective for it in h[-(s.stall_iterations + 1):]]
         return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
 
     def _run_stage(self, max_evaluations: int) -> np.ndarray:
@@ -400,6 +403,51 @@ class Optimizer:
             log.info("stage %d converged after %d evaluations", run.stage, len(run.log))
             self.stop_reason = "converged"
             return run.last[0].copy()
+
+    def _run_oc_stage(self, max_evaluations: int, last_stage: bool) -> np.ndarray:
+        """A stage of optimality-criteria steps (:func:`tofsi.oc.oc_step`) in topFlow's order:
+        evaluate, stop if the last stage has settled, step, and end an earlier stage after the
+        step (its last design is the next stage's first, evaluated with the next parameters).
+        A trial design that fails: the step is taken again from the last good design with half
+        the move limit (a fallback), until ``optimizer.max_failures`` failures in a row."""
+        run = self.run_stage
+        gamma, move = run.start, self.settings.move_limit
+        for _ in range(max_evaluations):
+            try:
+                entry = self._evaluate(gamma)
+            except TrialFailed as failed:
+                self.fallbacks += 1
+                run.failures_in_a_row += 1
+                self._give_up_unless_fallback(failed.error)
+                move *= 0.5
+                log.info("design iteration %d: a trial design failed (%s); the OC step again from the last "
+                         "good design with move limit %.3g (fallback %d)", len(self.history), failed.error,
+                         move, self.fallbacks)
+                if self.on_fallback:
+                    self.on_fallback(len(self.history), self.fallbacks, move, failed.error)
+                gamma = self._oc_step(*run.last, move)
+                continue
+            converged = self._converged()
+            if converged and last_stage:
+                break
+            gamma = self._oc_step(gamma, entry, move)
+            if converged:
+                break
+        else:
+            self.stop_reason = "max_iter"
+            return gamma
+        log.info("stage %d converged after %d evaluations", run.stage, len(run.log))
+        self.stop_reason = "converged"
+        return gamma
+
+    def _oc_step(self, gamma: np.ndarray, entry: dict, move: float) -> np.ndarray:
+        """One OC step from an evaluation, changing no variable by more than ``move``: the volume
+        bound's gradient (its filter and projection included) is the phase's volume weight ``dV``."""
+        p, d = self.problem, self.design
+        solid = d.constraint == "solid"
+        dg = np.asarray(entry["dg"])[0]
+        dvolume = np.maximum(dg if solid else -dg, 1e-300)
+        return oc_step(gamma, entry["df"], dvolume, p.phase_fraction, d.volume_fraction, solid, move)
 
     def _write_history(self) -> None:
         rows = [asdict(h) for h in self.history]

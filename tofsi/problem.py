@@ -57,7 +57,7 @@ class Problem:
         self.model = CoupledModel(scene, mesh)
         d = scene.design
         self.params: Continuation = self.model.params
-        self.map = DesignMap(self.model.mesh, d.filter_radius, d.eta)
+        self.map = DesignMap(self.model.mesh, d.filter_radius, d.eta, d.filter_kernel, d.filter_fixed)
         self.objective = OBJECTIVES.get(d.objective)()     # its effect is checked with the scene
         self.volume_fraction = VolumeFraction(self.model.mesh, self.map.design)
         self.kept_point = Kept()
@@ -70,12 +70,19 @@ class Problem:
         return self.map.size
 
     def initial_design(self) -> np.ndarray:
-        """``design.initial`` if given (a saved design), else uniform at the volume bound."""
+        """``design.initial`` if given (a saved design, or a number: a uniform design), else
+        uniform at the volume bound."""
         path = self.scene.design.initial
         if not path:
             fraction = self.scene.design.volume_fraction
             return np.full(self.n_design, fraction if self.scene.design.constraint == "solid" else 1 - fraction)
-        return read_design(path, self.n_design)         # checked: shape, finite, in [0, 1]
+        try:
+            value = float(path)
+        except ValueError:
+            return read_design(path, self.n_design)     # checked: shape, finite, in [0, 1]
+        if not 0.0 <= value <= 1.0:
+            raise InputError("design.initial", path, "a uniform starting design lies in [0, 1]")
+        return np.full(self.n_design, value)
 
     def set_stage(self, params: Continuation) -> None:
         """Continue with the continuation record ``params`` (e.g. ``continuation(scene, stage)``

@@ -152,6 +152,9 @@ def _check_across_tables(scene: Scene) -> None:
     if scene.design.structure_model and effects.structure == "none":
         raise InputError("design.structure_model", list(scene.design.structure_model),
                          "a structure model per stage needs a structure (effects.structure)")
+    if scene.optimizer.algorithm == "OC" and scene.design.min_skewness > -1:
+        raise InputError("optimizer.algorithm", "OC", "MMA or CCSAQ with design.min_skewness (the "
+                         "optimality-criteria update handles one volume bound only)")
     if scene.has_design:
         needs = OBJECTIVES.get(scene.design.objective).needs       # the effect it is a figure of
         if getattr(effects, needs) == "none":

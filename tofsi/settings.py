@@ -37,16 +37,21 @@ class SideFlow:
     open: tuple[tuple[float, ...], ...] = option((), length=2,
                                                  doc="open outlet segments [from, to] [m] with the natural "
                                                      "condition of fluid.outlet")
+    uniform: tuple[tuple[float, ...], ...] = option((), length=4,
+                                                    doc="segments [from, to, vx, vy] where the velocity is "
+                                                        "the constant (vx, vy), end points included [m, m, "
+                                                        "m/s, m/s]: a free stream or a moving wall (topFlow's "
+                                                        "rugby ball)")
 
     def __post_init__(self):
-        for name in ("inflow", "outflow", "open"):
+        for name in ("inflow", "outflow", "open", "uniform"):
             for i, segment in enumerate(getattr(self, name)):
                 if not segment[0] < segment[1]:
                     raise InputError(f"{name}[{i}]", list(segment[:2]), "need from < to")
 
     @property
     def is_empty(self) -> bool:
-        return not (self.inflow or self.outflow or self.open)
+        return not (self.inflow or self.outflow or self.open or self.uniform)
 
 
 @dataclass(frozen=True)
@@ -65,9 +70,17 @@ class FluidSettings:
                                                     doc="prescribed outflow segments [y0, y1, peak] on "
                                                         "the right side; empty: the side open (unless "
                                                         "a fluid.<side> table lists openings)")
-    outlet: str = option("zero-pressure", choices=("zero-pressure", "traction-free"),
-                         doc="outlet condition: mu dv/dn - p n = 0 (zero pressure for "
-                             "developed flow) or (-p I + 2 mu eps(v)) n = 0")
+    element: str = option("q2q1", choices=("q2q1", "q1q1"),
+                          doc="finite element: q2q1, Taylor-Hood (inf-sup stable, exact for Poiseuille "
+                              "flow); q1q1, equal-order bilinear velocity and pressure with topFlow's "
+                              "SUPG/PSPG stabilization (the element of topFlow and TOFLUX: a third of "
+                              "the unknowns on the same mesh, one order less accurate)")
+    outlet: str = option("zero-pressure", choices=("zero-pressure", "traction-free", "fixed-pressure"),
+                         doc="outlet condition: zero-pressure, mu dv/dn - p n = 0 (zero pressure for "
+                             "developed flow); traction-free, (-p I + 2 mu eps(v)) n = 0; "
+                             "fixed-pressure, p = 0 at the open segments' nodes, their end nodes "
+                             "included (normal velocity free there), with the strain-rate viscous "
+                             "form: topFlow's and TOFLUX's outlets")
     parallel_outflow: bool = option(False, doc="open outlets: tangential velocity 0, the flow leaves "
                                                "along the normal (as topFlow's outlets)")
     left: SideFlow = option(SideFlow(), doc="openings in the left side")
@@ -102,12 +115,13 @@ class StructureSettings:
     e_min_ratio: float = option(1e-9, gt=0, lt=1, doc="Emin / E0 of void (fluid) elements")
     clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
                                       doc="channel sides where the structure is clamped (at least one)")
-    load: str = option("reaction", choices=("reaction", "stress-divergence"),
+    load: str = option("reaction", choices=("reaction", "stress-divergence", "pressure"),
                        doc="the fluid's force on the solid: reaction, the momentum-consistent "
                            "reaction of the fluid residual (its resultant tends to the no-slip "
                            "body's drag and lift); stress-divergence, Lundgaard et al. 2018's "
                            "volume form of the total stress inside the solid (loses the viscous "
-                           "shear of an unresolved Brinkman layer; for reproducing published results)")
+                           "shear of an unresolved Brinkman layer; for reproducing published results); "
+                           "pressure, the same form with the pressure alone (TOFLUX's load)")
     load_exponent: float = option(1.0, ge=1, le=10,
                                   doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
                                       "et al.; the SIMP exponent keeps gray elements' displacement "
@@ -177,6 +191,12 @@ class DesignSettings:
     constraint: str = option("solid", choices=("solid", "fluid"),
                              doc="the phase whose fraction volume_fraction bounds (fluid: flow problems)")
     filter_radius: float = option(0.045, gt=0, doc="density filter radius [m]")
+    filter_kernel: str = option("linear", choices=("linear", "circular"),
+                                doc="filter weights at distance d: linear, r - d (a hat); circular, "
+                                    "sqrt(1 - d^2 / r^2) (TOFLUX's)")
+    filter_fixed: bool = option(False, doc="the filter also averages the fixed elements within its "
+                                           "radius at their values (1 solid, 0 fluid), as TOFLUX: the "
+                                           "design next to a fixed solid starts partly solid")
     eta: float = option(0.5, gt=0, lt=1, doc="projection threshold")
     beta: tuple[float, ...] = option((1.0, 2.0, 4.0, 8.0, 16.0), ge=0, le=1000,
                                      doc="projection sharpness schedule (one value per stage)")
@@ -209,7 +229,9 @@ class DesignSettings:
                                                   "structure.model throughout")
     stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
-                                  "(path relative to the working directory); empty: uniform")
+                                  "(path relative to the working directory), or a number in [0, 1] "
+                                  "(that uniform design, e.g. \"1e-4\" as TOFLUX); empty: uniform at "
+                                  "the volume bound")
 
     def __post_init__(self):
         if not self.beta:
@@ -225,12 +247,18 @@ class DesignSettings:
 
 @dataclass(frozen=True)
 class OptimizerSettings:
-    """NLopt driver (table ``[optimizer]``)."""
+    """The optimizer (table ``[optimizer]``): NLopt's MMA or CCSAQ, or optimality criteria."""
 
-    algorithm: str = option("MMA", choices=("MMA", "CCSAQ"), doc="NLopt LD_MMA or LD_CCSAQ")
+    algorithm: str = option("MMA", choices=("MMA", "CCSAQ", "OC"),
+                            doc="NLopt LD_MMA or LD_CCSAQ, or OC: topFlow's optimality criteria "
+                                "(one volume bound; exponent 1/3, move limit optimizer.move_limit)")
     max_iter: int = option(200, ge=1, doc="largest number of design iterations")
     tol_change: float = option(1e-3, gt=0, doc="stop when max |gamma change| falls below")
     tol_objective: float = option(1e-6, gt=0, doc="stop on relative objective change below")
+    stall_iterations: int = option(3, ge=1, le=100,
+                                   doc="a stage ends when the relative objective change stays below "
+                                       "tol_objective this many iterations in a row (topFlow: 5)")
+    move_limit: float = option(0.2, gt=0, le=1, doc="largest change of a design variable per OC step")
     output_every: int = option(10, ge=1, doc="write pictures and VTU every N iterations")
     max_failures: int = option(5, ge=1, le=1000,
                                doc="failed trial designs in a row (a coupled solve or mesh motion that "

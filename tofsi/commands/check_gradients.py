@@ -38,6 +38,16 @@ def taylor_step(beta: float) -> float:
     return 1e-2 / max(1.0, beta / 4.0)
 
 
+def uniform(initial: str) -> bool:
+    """Whether ``design.initial`` is a number (a uniform start: a poor point to check, where
+    a density near 0 or 1 leaves the Taylor remainders at round-off) rather than a file."""
+    try:
+        float(initial)
+    except ValueError:
+        return False
+    return True
+
+
 def checked_stage(scene, text) -> int:
     """``--stage``: as given, or the first two-way stage, or 0."""
     if text is not None:
@@ -51,7 +61,7 @@ def run(scene, args, ctx) -> dict:
     rng = np.random.default_rng(args.seed)
     stage = checked_stage(scene, getattr(args, "stage", None))
     params = continuation(scene, stage)
-    if scene.design.initial:
+    if scene.design.initial and not uniform(scene.design.initial):      # the user's design file
         gamma, design = problem.initial_design(), scene.design.initial
     elif stage > 0 and stage in two_way_stages(scene):
         with ctx.step(f"reaching stage {stage} through the scene's stages 0 to {stage - 1}"), \

@@ -12,10 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from tofsi.fem.assembly import assemble_vector, element_dofs
-from tofsi.fem.geometry import physical_gradients
+from tofsi.fem.complex_step import corner_derivatives
 from tofsi.objectives import Objective
-from tofsi.physics.fluid_kernel import N2, POINTS, WEIGHTS
-from tofsi.physics.fluid_shape import dissipation_shape
 from tofsi.registry import OBJECTIVES
 
 
@@ -28,10 +26,7 @@ class Dissipation(Objective):
     @staticmethod
     def element_values(flow, Xe, w, rho, params=None) -> np.ndarray:
         ve, _ = flow.split(w)
-        grad, det = physical_gradients(Xe, 2, POINTS)
-        L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)
-        v = np.matmul(N2, ve)
-        wd = det * WEIGHTS
+        _, wd, v, L = flow.element.velocity_fields(Xe, ve)
         alpha = flow.alpha(rho, params)
         return 0.5 * np.sum(wd * (flow.settings.viscosity * np.sum(L * L, axis=(-1, -2))
                                   + alpha[:, None] * np.sum(v * v, axis=-1)), axis=1)
@@ -45,21 +40,23 @@ class Dissipation(Objective):
         flow, X, rho, params = model.flow, state.mesh_displacement, state.rho, state.params
         Xe = flow.corners(X)
         ve, _ = flow.split(state.w)
-        grad, det = physical_gradients(Xe, 2, POINTS)
-        wd = det * WEIGHTS
-        g18 = grad.reshape(grad.shape[0], grad.shape[1], 18)
-        M = np.matmul((g18 * wd[..., None]).transpose(0, 2, 1), g18).reshape(-1, 9, 2, 9, 2)
+        el = flow.element
+        grad, wd, v, _ = el.velocity_fields(Xe, ve)                                # (E, G, k, 2)
+        E, G, k = grad.shape[:3]
+        gk = grad.reshape(E, G, 2 * k)
+        M = np.matmul((gk * wd[..., None]).transpose(0, 2, 1), gk).reshape(E, k, 2, k, 2)
         lap = M[:, :, 0, :, 0] + M[:, :, 1, :, 1]
-        mass = np.matmul(N2.T[None] * wd[:, None, :], N2)
-        A = flow.settings.viscosity * lap + flow.alpha(rho, params)[:, None, None] * mass   # (E, 9, 9)
-        gv = np.matmul(A, ve)                                                       # (E, 9, 2)
-        ge = np.zeros((Xe.shape[0], 22))
-        ge[:, :18] = gv.reshape(-1, 18)
-        v = np.matmul(N2, ve)
+        mass = np.matmul(el.N.T[None] * wd[:, None, :], el.N)
+        A = flow.settings.viscosity * lap + flow.alpha(rho, params)[:, None, None] * mass   # (E, k, k)
+        gv = np.matmul(A, ve)                                                       # (E, k, 2)
+        ge = np.zeros(flow.dofs.shape)
+        ge[:, :2 * k] = gv.reshape(E, 2 * k)
         out = {"w": assemble_vector(flow.dofs, ge, flow.size),
                "rho": 0.5 * flow.brinkman(params).derivative(rho) * np.sum(wd * np.sum(v * v, axis=-1), axis=1)}
         if state.x is not None:                       # the flow saw the moved mesh
-            out["x"] = assemble_vector(element_dofs(model.mesh.quads, 2),
-                                       dissipation_shape(Xe, ve, flow.alpha(rho, params), flow.settings.viscosity),
-                                       2 * model.mesh.n_nodes)
+            if el.dissipation_shape is not None:      # Taylor-Hood: analytic
+                dphi = el.dissipation_shape(Xe, ve, flow.alpha(rho, params), flow.settings.viscosity)
+            else:
+                dphi = corner_derivatives(lambda Xc: self.element_values(flow, Xc, state.w, rho, params), Xe)
+            out["x"] = assemble_vector(element_dofs(model.mesh.quads, 2), dphi, 2 * model.mesh.n_nodes)
         return out

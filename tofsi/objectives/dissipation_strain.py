@@ -6,9 +6,7 @@ import numpy as np
 
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.complex_step import corner_derivatives
-from tofsi.fem.geometry import physical_gradients
 from tofsi.objectives import Objective
-from tofsi.physics.fluid_kernel import N2, POINTS, WEIGHTS
 from tofsi.registry import OBJECTIVES
 
 
@@ -25,12 +23,10 @@ class StrainDissipation(Objective):
     @staticmethod
     def element_values(flow, Xe, w, rho, params=None) -> np.ndarray:
         ve, _ = flow.split(w)
-        grad, det = physical_gradients(Xe, 2, POINTS)
-        L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)               # (E, G, 2, 2)
-        v = np.matmul(N2, ve)
+        _, wd, v, L = flow.element.velocity_fields(Xe, ve)                 # L (E, G, 2, 2)
         strain = np.sum(L * (L + np.swapaxes(L, -1, -2)), axis=(-1, -2))   # 2 eps : eps
-        return 0.5 * np.sum(det * WEIGHTS * (flow.settings.viscosity * strain
-                                             + flow.alpha(rho, params)[:, None] * np.sum(v * v, axis=-1)), axis=1)
+        return 0.5 * np.sum(wd * (flow.settings.viscosity * strain
+                                  + flow.alpha(rho, params)[:, None] * np.sum(v * v, axis=-1)), axis=1)
 
     def value(self, model, state) -> float:
         flow = model.flow
@@ -43,15 +39,13 @@ class StrainDissipation(Objective):
         flow, X, rho, params = model.flow, state.mesh_displacement, state.rho, state.params
         Xe = flow.corners(X)
         ve, _ = flow.split(state.w)
-        grad, det = physical_gradients(Xe, 2, POINTS)                       # (E, G, 9, 2)
-        wd = det * WEIGHTS
-        L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)
-        v = np.matmul(N2, ve)
+        grad, wd, v, L = flow.element.velocity_fields(Xe, ve)               # grad (E, G, k, 2)
         S = flow.settings.viscosity * (L + np.swapaxes(L, -1, -2))          # (E, G, 2, 2)
         gv = np.einsum("eg,egij,egaj->eai", wd, S, grad)
-        gv += flow.alpha(rho, params)[:, None, None] * np.einsum("eg,ga,egi->eai", wd, N2, v)
-        ge = np.zeros((Xe.shape[0], 22))
-        ge[:, :18] = gv.reshape(-1, 18)
+        gv += flow.alpha(rho, params)[:, None, None] * np.einsum("eg,ga,egi->eai", wd, flow.element.N, v)
+        E, k2 = gv.shape[0], gv.shape[1] * 2
+        ge = np.zeros(flow.dofs.shape)
+        ge[:, :k2] = gv.reshape(E, k2)
         out = {"w": assemble_vector(flow.dofs, ge, flow.size),
                "rho": 0.5 * flow.brinkman(params).derivative(rho) * np.sum(wd * np.sum(v * v, axis=-1), axis=1)}
         if state.x is not None:                       # the flow saw the moved mesh

@@ -1,15 +1,18 @@
-"""The fluid block F(w; x, rho): Taylor-Hood flow in the channel on the moved mesh.
+"""The fluid block F(w; x, rho): flow in the channel on the moved mesh.
 
-``w = (v, p)``: velocity on the Q2 nodes (dofs ``2 k + i``), then pressure on
-the Q1 corners (dofs ``2 n9 + k``). The mesh is the reference mesh moved by
+``w = (v, p)``: velocity on the element type's velocity nodes (dofs ``2 k + i``;
+Taylor-Hood Q2/Q1 by default, or stabilized equal-order Q1/Q1 with
+``fluid.element = "q1q1"``, :mod:`tofsi.physics.fluid_elements`), then pressure
+on the Q1 corners (dofs ``n_velocity + k``). The mesh is the reference mesh moved by
 ``x`` (n, 2) -- the ALE configuration -- and Brinkman friction
 ``alpha(rho_e)`` acts per element. Boundary conditions come from
 :mod:`tofsi.physics.flow_boundary` (walls, parabolic inflow and outflow, open
 outlets on any side; by default inflow on the left and an open right side),
 where open segments take the natural condition of the viscous form
 (``zero-pressure``: the do-nothing condition of the gradient form,
-``traction-free``: ``sigma n = 0``). With no open boundary the pressure is
-pinned at one corner.
+``traction-free``: ``sigma n = 0``) or, with ``fixed-pressure``, hold ``p = 0`` at
+their nodes (topFlow's and TOFLUX's outlets). With no open boundary the
+pressure is pinned at one corner.
 
 Steady Navier-Stokes is solved by Newton's method with a backtracking line
 search on ``|R|``; when it fails, by continuation in the fluid density
@@ -30,11 +33,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from tofsi.blocks import Continuation
-from tofsi.errors import NumericalError
+from tofsi.errors import InputError, NumericalError
 from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
-from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.dirichlet import DirichletOperator
-from tofsi.fem.geometry import map_points, physical_gradients
+from tofsi.fem.geometry import map_points
 from tofsi.interpolation import Brinkman
 from tofsi.iteration import backtracking, forcing_term
 from tofsi.kept import Kept, input_key
@@ -42,9 +44,7 @@ from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import resolve
 from tofsi.physics.flow_boundary import FlowBoundary
 from tofsi.physics.flow_preconditioner import flow_preconditioner
-from tofsi.physics.fluid_kernel import (N2, POINTS, WEIGHTS, brinkman_partial, fluid_elements,
-                                        velocity_fields)
-from tofsi.physics.fluid_shape import fluid_shape
+from tofsi.physics.fluid_elements import ELEMENTS
 
 log = logging.getLogger(__name__)
 ROUND_OFF = 64 * np.finfo(float).eps        # componentwise backward error that counts as exact
@@ -74,7 +74,8 @@ class FlowSolution:
 
 
 class Flow:
-    """Taylor-Hood discretization of the channel flow on a structured mesh.
+    """Finite-element discretization of the channel flow on a structured mesh (the element type
+    of ``settings.element``).
 
     mesh : StructuredQuadMesh; settings : FluidSettings; stokes : drop inertia
     boundary_velocity : optional ``v(points (m, 2)) -> (m, 2)`` prescribed on all four
@@ -91,16 +92,21 @@ class Flow:
         self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.body_force = body_force
         self.density = 0.0 if stokes else settings.density
-        self.symmetric = settings.outlet == "traction-free"
-        n9, n = mesh.n_nodes9, mesh.n_nodes
-        self.n_velocity, self.size = 2 * n9, 2 * n9 + n
-        self.dofs = np.hstack([element_dofs(mesh.quads9, 2), 2 * n9 + mesh.quads])   # (E, 22)
-        self.boundary = (FlowBoundary.for_channel(mesh, settings) if boundary_velocity is None
-                         else FlowBoundary.prescribed(mesh, boundary_velocity))
+        self.symmetric = settings.outlet in ("traction-free", "fixed-pressure")
+        self.element = element = ELEMENTS[settings.element]
+        if self.linear_algebra.iterative and element.name != "q2q1":
+            raise InputError("fluid.element", settings.element, "q2q1 on the iterative path (its block "
+                             "preconditioner is written for Taylor-Hood); q1q1 with a direct solver.backend")
+        nv, n = element.n_nodes(mesh), mesh.n_nodes
+        self.n_velocity, self.size = 2 * nv, 2 * nv + n
+        self.dofs = np.hstack([element_dofs(element.quads(mesh), 2), 2 * nv + mesh.quads])   # (E, 2k + 4)
+        self.boundary = (FlowBoundary.for_channel(mesh, settings, element) if boundary_velocity is None
+                         else FlowBoundary.prescribed(mesh, boundary_velocity, element))
         self.open_outlet = self.boundary.is_open
-        fixed = [self.boundary.fixed] + ([] if self.open_outlet else [np.array([2 * n9])])  # closed: pin p
+        pressure = self.boundary.fixed_pressure if self.open_outlet else np.array([0])   # closed: pin p
+        fixed = [self.boundary.fixed, self.n_velocity + pressure]
         self.values = np.zeros(self.size)
-        self.values[:2 * n9] = self.boundary.values
+        self.values[:2 * nv] = self.boundary.values
         self.bc = DirichletOperator(self.dofs, self.dofs, self.size, np.concatenate(fixed))
         self._perm = None
         self.kept_shape = Kept()          # (R_e, dR_e/dXe) of the last shape evaluation
@@ -116,9 +122,14 @@ class Flow:
         return P[self.mesh.quads]
 
     def split(self, w):
-        """Element velocities ``(E, 9, 2)`` and pressures ``(E, 4)``."""
+        """Element velocities ``(E, k, 2)`` (``k`` velocity nodes per element) and pressures ``(E, 4)``."""
         we = w[self.dofs]
-        return we[:, :18].reshape(-1, 9, 2), we[:, 18:]
+        k2 = 2 * self.element.nodes_per_element
+        return we[:, :k2].reshape(len(we), -1, 2), we[:, k2:]
+
+    def corner_velocity(self, w) -> np.ndarray:
+        """The velocity ``(n, 2)`` at the corner nodes (numbered first among the velocity nodes)."""
+        return np.asarray(w)[:self.n_velocity].reshape(-1, 2)[:self.mesh.n_nodes]
 
     def brinkman(self, params: Continuation | None = None) -> Brinkman:
         """The friction interpolation at the Brinkman ``q`` of ``params``."""
@@ -144,15 +155,13 @@ class Flow:
         """Element residuals and Jacobians on the mesh moved by ``x`` (or on corners ``Xe``)."""
         ve, pe = self.split(w)
         Xe = self.corners(x) if Xe is None else Xe
-        Re, Ke = fluid_elements(Xe, ve, pe, self.alpha(rho, params),
-                                self.density if density is None else density,
-                                self.settings.viscosity, self.symmetric, jacobian)
-        if self.body_force is not None:
-            _, det = physical_gradients(Xe, 1, POINTS)
-            f = self.body_force(map_points(Xe, POINTS))                          # (E, G, 2)
-            Re = Re.astype(np.result_type(Re, f))
-            Re[:, :18] -= np.matmul(N2.T, f * (det * WEIGHTS)[..., None]).reshape(len(Xe), 18)
-        return Re, Ke
+        return self.element.residual(Xe, ve, pe, self.alpha(rho, params),
+                                     self.density if density is None else density,
+                                     self.settings.viscosity, self.symmetric, self.force_at(Xe), jacobian)
+
+    def force_at(self, Xe):
+        """The body force ``(E, G, 2)`` at the element kernel's points of corners ``Xe``, or None."""
+        return None if self.body_force is None else self.body_force(map_points(Xe, self.element.POINTS))
 
     def residual(self, w, x=None, rho=None, density=None, params=None) -> np.ndarray:
         """``F(w; x, rho)`` (size,), unconstrained (boundary rows included)."""
@@ -169,15 +178,16 @@ class Flow:
                          params, density, self.symmetric, self.settings, self.body_force)
 
     def element_jacobians(self, w, x=None, rho=None, params=None, density=None):
-        """``(R_e (E, 22), K_e (E, 22, 22))`` on the mesh moved by ``x`` (``density`` defaults to
-        the flow's). The last evaluation is kept (read-only), keyed by every input: the fluid
-        load's ``S_w`` at a converged state reuses the Jacobian of the Newton solve's last check."""
+        """``(R_e (E, m), K_e (E, m, m))`` (``m = 22`` Taylor-Hood, 12 equal order) on the mesh
+        moved by ``x`` (``density`` defaults to the flow's). The last evaluation is kept
+        (read-only), keyed by every input: the fluid load's ``S_w`` at a converged state reuses
+        the Jacobian of the Newton solve's last check."""
         return self.kept_elements.get(
             self.evaluation_key(w, x, rho, params, density),
             lambda: self.element_residual(w, x, rho, density=density, params=params))
 
     def element_residuals(self, w, x=None, rho=None, params=None, density=None) -> np.ndarray:
-        """``R_e (E, 22)`` on the mesh moved by ``x``: the kept Jacobian evaluation's when its
+        """``R_e (E, m)`` on the mesh moved by ``x``: the kept Jacobian evaluation's when its
         inputs are these, else a residual-only evaluation, itself kept (keyed by every input), so
         a line-search trial's flow residual and the fluid load at the same state share one."""
         key = self.evaluation_key(w, x, rho, params, density)
@@ -194,25 +204,19 @@ class Flow:
         return self.bc.matrix(Ke), assemble_vector(self.dofs, Re, self.size), Ke
 
     def shape_elements(self, w, x=None, rho=None, params=None):
-        """``(R_e (E, 22), dR_e/dXe (E, 22, 8))`` on the mesh moved by ``x``: the analytic shape
-        derivative (:func:`~tofsi.physics.fluid_shape.fluid_shape`), or with a body force the
-        complex step through :meth:`element_residual`. The last evaluation is kept, keyed by
-        every input (the flow's ``F_x`` and the fluid load's ``S_x`` share it)."""
+        """``(R_e (E, m), dR_e/dXe (E, m, 8))`` on the mesh moved by ``x``: the element type's
+        (Taylor-Hood: analytic, :func:`~tofsi.physics.fluid_shape.fluid_shape`, or with a body
+        force the complex step; equal order: the complex step). The last evaluation is kept,
+        keyed by every input (the flow's ``F_x`` and the fluid load's ``S_x`` share it)."""
         return self.kept_shape.get(self.evaluation_key(w, x, rho, params),
                                    lambda: self._shape_elements(w, x, rho, params))
 
     def _shape_elements(self, w, x, rho, params):
         rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
-        Xe = self.corners(x)
-        if self.body_force is None:
-            ve, pe = self.split(w)
-            values = fluid_shape(Xe, ve, pe, self.alpha(rho, params), self.density, self.settings.viscosity,
-                                 self.symmetric)
-        else:
-            values = (self.element_residual(w, None, rho, jacobian=False, Xe=Xe, params=params)[0],
-                      corner_derivatives(lambda Xc: self.element_residual(w, None, rho, jacobian=False, Xe=Xc,
-                                                                          params=params)[0], Xe))
-        return values
+        ve, pe = self.split(w)
+        return self.element.shape(self.corners(x), ve, pe, self.alpha(rho, params), self.density,
+                                  self.settings.viscosity, self.symmetric,
+                                  None if self.body_force is None else self.force_at)
 
     def shape_partial(self, w, x=None, rho=None, params=None) -> sp.csr_matrix:
         """``F_x`` (size x 2n): derivative with respect to the mesh displacement."""
@@ -221,27 +225,31 @@ class Flow:
                                                 (self.size, 2 * self.mesh.n_nodes))
         return self._shape_pattern.assemble(self.shape_elements(w, x, rho, params)[1])
 
+    def alpha_vectors(self, w, x, rho, params=None) -> np.ndarray:
+        """``dF_e/dalpha_e`` ``(E, m)``: the element residual's derivative in its friction
+        (equal order: the stabilization's too)."""
+        ve, pe = self.split(w)
+        Xe = self.corners(x)
+        return self.element.alpha_partial(Xe, ve, pe, self.alpha(rho, params), self.density,
+                                          self.settings.viscosity, self.symmetric, self.force_at(Xe))
+
     def density_vectors(self, w, x, rho, params=None) -> np.ndarray:
-        """``dF_e/drho_e`` ``(E, 22)``: the Brinkman friction's derivative per element."""
-        ve, _ = self.split(w)
+        """``dF_e/drho_e`` ``(E, m)``: the Brinkman friction's derivative per element."""
         rho = np.zeros(self.mesh.n_elements) if rho is None else rho
-        return brinkman_partial(self.corners(x), ve) * self.brinkman(params).derivative(rho)[:, None]
+        return self.alpha_vectors(w, x, rho, params) * self.brinkman(params).derivative(rho)[:, None]
 
     def density_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
         """``F_rho`` (size x E)."""
         vals = self.density_vectors(w, x, rho, params)
-        E = vals.shape[0]
-        return sp.csr_matrix((vals.ravel(), (self.dofs.ravel(), np.repeat(np.arange(E), 22))),
+        E, m = vals.shape
+        return sp.csr_matrix((vals.ravel(), (self.dofs.ravel(), np.repeat(np.arange(E), m))),
                              shape=(self.size, E))
 
     # ---- solving -------------------------------------------------------------------
     def grid(self) -> np.ndarray:
         """Fine-grid positions of the dofs (for the nested-dissection ordering)."""
-        m = self.mesh
-        I, J = np.meshgrid(np.arange(2 * m.nx + 1), np.arange(2 * m.ny + 1), indexing="xy")
-        pos9 = np.empty((m.n_nodes9, 2), dtype=np.int64)
-        pos9[m.node9(I.ravel(), J.ravel())] = np.column_stack([I.ravel(), J.ravel()])
-        return np.vstack([np.repeat(pos9, 2, axis=0), pos9[: m.n_nodes]])
+        return np.vstack([np.repeat(self.element.grid_positions(self.mesh), 2, axis=0),
+                          self.mesh.grid_positions()])
 
     @property
     def pressure_dofs(self) -> np.ndarray:
@@ -369,7 +377,7 @@ class Flow:
         whatever the residual's form).
         """
         ve, _ = self.split(w)
-        grad, wdet, v, L = velocity_fields(self.corners(x), ve)
+        grad, wdet, v, L = self.element.velocity_fields(self.corners(x), ve)
         eps = 0.5 * (L + np.swapaxes(L, -1, -2))
         alpha = self.alpha(rho, params)
         viscous = float(np.sum(2 * self.settings.viscosity * np.einsum("egij,egij->eg", eps, eps) * wdet))

@@ -1,9 +1,9 @@
 """The fluid's force on the solid phase in the unified Brinkman domain, on the Q1 (structure) nodes.
 
-Two forms (scene key ``structure.load``), both functions of the flow state:
+Three forms (scene key ``structure.load``), all functions of the flow state:
 
 ``reaction`` (default) -- the momentum-consistent reaction. Per element, on the
-Q2 velocity rows ``b`` that are not Dirichlet (``free``),
+velocity rows ``b`` (Q2 or, for equal order, Q1 nodes) that are not Dirichlet (``free``),
 
     rows_e = (alpha_e - alpha_min) A_e w_e + psi_e (R_e(w_e) - alpha_e A_e w_e),
     f_(a i) = sum_e sum_b T_ba rows_e(b i),
@@ -11,7 +11,7 @@ Q2 velocity rows ``b`` that are not Dirichlet (``free``),
 with ``R_e`` the fluid element residual (viscous, pressure, convection and
 Brinkman terms), ``A_e w_e = int N_b v_i`` its Brinkman part per unit
 friction, ``psi_e = rho_e^k`` and ``T_ba = M_a(x_b)`` the Q1 shape functions
-at the Q2 nodes (``M_a = sum_b T_ba N_b``), so ``f`` is the residual tested with
+at the velocity nodes (``M_a = sum_b T_ba N_b``), so ``f`` is the residual tested with
 the structure's shape functions. For 0/1 densities and a converged flow it is
 minus the fluid elements' residual on the solid's boundary rows: the
 reaction force of the Brinkman state on the body, node by node. As the
@@ -20,6 +20,8 @@ mesh and the load to the no-slip body's reaction (error ~ mu / (alpha h^2);
 see ``docs/design.md``); Dirichlet rows (a wall under a clamped solid) carry
 no load, and the resultant is the drag and lift. Gray elements carry their
 Brinkman exchange plus ``psi`` times their own stress residual, smooth in rho.
+(The equal-order element's stabilization terms belong to ``R_e``; its friction
+derivative ``dR_e/dalpha`` is the element's own, ``tau`` included.)
 
 ``stress-divergence`` -- Lundgaard et al. (2018, eq. 3) with the viscous
 stress added (Abdelhamid & Czekanski's total stress):
@@ -31,10 +33,17 @@ evaluated inside the solid, where the unresolved Brinkman layer loses most of
 the viscous shear (kept to reproduce published results). It is linear in
 ``w``: ``f_e = psi_e B_e(Xe) w_e``.
 
+``pressure`` -- the same volume form with the pressure alone (TOFLUX's load,
+``experiments/fsi/pressure_coupling.py``; its sign there is the opposite, which
+changes neither the compliance nor the design):
+
+    f_(a i) = -sum_e psi_e int_e [p dM_a/dx_i + M_a dp/dx_i].
+
 Every form gives its element loads and their partial derivatives with
 respect to ``w`` and ``rho`` from one kernel call, and with respect to the
-mesh position analytically (:mod:`tofsi.physics.fluid_shape`; the tests
-check them against the complex step through the same kernels).
+mesh position analytically for Taylor-Hood (:mod:`tofsi.physics.fluid_shape`;
+the tests check them against the complex step through the same kernels) and
+by the complex step for equal order.
 """
 
 from __future__ import annotations
@@ -44,60 +53,68 @@ import scipy.sparse as sp
 
 from tofsi.blocks import Continuation
 from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
+from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.geometry import physical_gradients, physical_hessians
-from tofsi.fem.shapes import Q2_NODES, shape_functions
+from tofsi.fem.shapes import shape_functions
 from tofsi.kept import Kept, input_key
-from tofsi.physics.fluid_kernel import N1, N2, POINTS, WEIGHTS, brinkman_partial
-from tofsi.physics.fluid_shape import mass_shape, stress_load_shape
+from tofsi.physics.fluid_elements import TaylorHood
 
-LOAD_FORMS = ("reaction", "stress-divergence")
-Q2_TO_Q1, _ = shape_functions(1, Q2_NODES)                      # (9, 4): T_ba = M_a(x_b)
-ROWS_TO_CORNERS = np.kron(Q2_TO_Q1.T, np.eye(2))                 # (8, 18): f_e = ROWS_TO_CORNERS @ rows_e
+LOAD_FORMS = ("reaction", "stress-divergence", "pressure")
 
 
-def load_operator(Xe: np.ndarray, viscosity: float) -> np.ndarray:
-    """``B_e`` ``(E, 8, 22)`` of the stress-divergence form, ``f_e = psi_e B_e w_e`` (complex-safe)."""
+def rows_to_corners(element) -> np.ndarray:
+    """``T`` ``(8, 2k)`` with ``f_e = T rows_e``: the velocity rows tested with the Q1 shape
+    functions (``T[2a+i, 2b+i] = M_a(x_b)``; the identity for equal order)."""
+    return np.kron(element.to_corners.T, np.eye(2))
+
+
+def load_operator(Xe: np.ndarray, viscosity: float, element=TaylorHood) -> np.ndarray:
+    """``B_e`` ``(E, 8, 2k + 4)`` of the stress-divergence form, ``f_e = psi_e B_e w_e``
+    (complex-safe); ``viscosity = 0`` gives the pressure-only form."""
     E = Xe.shape[0]
     mu = viscosity
-    g2, det = physical_gradients(Xe, 2, POINTS)                     # (E, G, 9, 2)
-    g1, _ = physical_gradients(Xe, 1, POINTS)                       # (E, G, 4, 2)
-    H2 = physical_hessians(Xe, 2, POINTS, g2)                       # (E, G, 9, 2, 2)
-    w = det * WEIGHTS                                               # (E, G)
+    points, k = element.POINTS, element.nodes_per_element
+    N1, _ = shape_functions(1, points)                              # (G, 4)
+    gv, det = physical_gradients(Xe, element.degree, points)        # (E, G, k, 2)
+    g1, _ = physical_gradients(Xe, 1, points)                       # (E, G, 4, 2)
+    Hv = physical_hessians(Xe, element.degree, points, gv)          # (E, G, k, 2, 2)
+    w = det * element.WEIGHTS                                       # (E, G)
     G = w.shape[1]
     gw = g1 * w[..., None, None]                                    # (E, G, 4, 2)
     Mw = N1[None] * w[..., None]                                    # (E, G, 4)
     # cross[a, k, b, i] = sum_g dM_a/dx_k dN_b/dx_i  (one product over stacked points)
-    cross = np.matmul(gw.reshape(E, G, 8).transpose(0, 2, 1), g2.reshape(E, G, 18)).reshape(E, 4, 2, 9, 2)
+    cross = np.matmul(gw.reshape(E, G, 8).transpose(0, 2, 1), gv.reshape(E, G, 2 * k)).reshape(E, 4, 2, k, 2)
     dot = cross[:, :, 0, :, 0] + cross[:, :, 1, :, 1]               # grad M_a . grad N_b
-    lap = H2[..., 0, 0] + H2[..., 1, 1]                             # (E, G, 9)
+    lap = Hv[..., 0, 0] + Hv[..., 1, 1]                             # (E, G, k)
     Mlap = np.matmul(Mw.transpose(0, 2, 1), lap)                    # sum_g M_a lap N_b
-    MH = np.matmul(Mw.transpose(0, 2, 1), H2.reshape(E, G, 36)).reshape(E, 4, 9, 2, 2)   # [a, b, k, i]
+    MH = np.matmul(Mw.transpose(0, 2, 1), Hv.reshape(E, G, 4 * k)).reshape(E, 4, k, 2, 2)   # [a, b, k, i]
     B = mu * cross.transpose(0, 1, 4, 3, 2) + mu * MH.transpose(0, 1, 4, 2, 3)           # [a, i, b, k]
     B[:, :, 0, :, 0] += mu * (dot + Mlap)
     B[:, :, 1, :, 1] += mu * (dot + Mlap)
     # pressure: -p dM_a/dx_i - M_a dp/dx_i
     P = -(np.matmul(gw.reshape(E, G, 8).transpose(0, 2, 1), N1).reshape(E, 4, 2, 4)
           + np.matmul(Mw.transpose(0, 2, 1), g1.reshape(E, G, 8)).reshape(E, 4, 4, 2).transpose(0, 1, 3, 2))
-    out = np.empty((E, 8, 22), dtype=B.dtype)
-    out[:, :, :18] = B.reshape(E, 8, 18)
-    out[:, :, 18:] = P.reshape(E, 8, 4)
+    out = np.empty((E, 8, 2 * k + 4), dtype=B.dtype)
+    out[:, :, :2 * k] = B.reshape(E, 8, 2 * k)
+    out[:, :, 2 * k:] = P.reshape(E, 8, 4)
     return out
 
 
-def brinkman_operator(Xe: np.ndarray) -> np.ndarray:
-    """``A_e`` ``(E, 18, 22)``: ``A[2b+i, 2c+i] = int_e N_b N_c`` [m^2] (complex-safe in ``Xe``)."""
-    _, det = physical_gradients(Xe, 1, POINTS)
-    NN = np.matmul((N2[None] * (det * WEIGHTS)[..., None]).transpose(0, 2, 1), N2)   # (E, 9, 9)
-    A = np.zeros((Xe.shape[0], 18, 22), dtype=NN.dtype)
-    A[:, 0:18:2, 0:18:2] = NN
-    A[:, 1:18:2, 1:18:2] = NN
+def brinkman_operator(Xe: np.ndarray, element=TaylorHood) -> np.ndarray:
+    """``A_e`` ``(E, 2k, 2k + 4)``: ``A[2b+i, 2c+i] = int_e N_b N_c`` [m^2] (complex-safe in ``Xe``)."""
+    N, k = element.N, element.nodes_per_element
+    _, det = physical_gradients(Xe, 1, element.POINTS)
+    NN = np.matmul((N[None] * (det * element.WEIGHTS)[..., None]).transpose(0, 2, 1), N)   # (E, k, k)
+    A = np.zeros((Xe.shape[0], 2 * k, 2 * k + 4), dtype=NN.dtype)
+    A[:, 0:2 * k:2, 0:2 * k:2] = NN
+    A[:, 1:2 * k:2, 1:2 * k:2] = NN
     return A
 
 
 class FluidForce:
     """The fluid's force on the solid phase of a :class:`~tofsi.physics.flow.Flow` (nodal, on Q1).
 
-    form : ``"reaction"`` or ``"stress-divergence"`` (see the module docstring)
+    form : ``"reaction"``, ``"stress-divergence"`` or ``"pressure"`` (see the module docstring)
     ``params`` default to :class:`~tofsi.blocks.Continuation` (q, load exponent k).
     """
 
@@ -105,14 +122,23 @@ class FluidForce:
         if form not in LOAD_FORMS:
             raise ValueError(f"unknown load form {form!r}; one of {LOAD_FORMS}")
         self.flow, self.form = flow, form
+        self.element = flow.element
+        self.k2 = 2 * flow.element.nodes_per_element                           # velocity rows per element
+        self.to_corners = rows_to_corners(flow.element)                        # (8, 2k)
         self.dofs = element_dofs(flow.mesh.quads, 2)                           # (E, 8)
         self.size = 2 * flow.mesh.n_nodes
-        self.free = (~flow.bc.is_fixed[flow.dofs[:, :18]]).astype(float)       # (E, 18)
+        self.free = (~flow.bc.is_fixed[flow.dofs[:, :self.k2]]).astype(float)  # (E, 2k)
         self.kept_operators = Kept()      # B of the stress-divergence form on the last mesh
         self.kept_values = Kept()         # element loads (and partials) of the last evaluation
         self.kept_shape = Kept()          # df_e/dXe of the last shape evaluation
         self._fluid_pattern = None        # CSR patterns of df/dw and df/dx (made on first use)
         self._shape_pattern = None
+
+    @property
+    def viscosity(self) -> float:
+        """The viscosity in the volume forms [Pa s]: the flow's, read at each use (the pressure
+        form: none)."""
+        return 0.0 if self.form == "pressure" else self.flow.settings.viscosity
 
     # ---- weights -----------------------------------------------------------------------
     @staticmethod
@@ -129,16 +155,15 @@ class FluidForce:
     # ---- element kernels ---------------------------------------------------------------------
     def stress_operators(self, x=None) -> np.ndarray:
         """``B_e`` on the mesh moved by ``x`` (kept, keyed by ``x`` and the viscosity)."""
-        mu = self.flow.settings.viscosity
+        mu = self.viscosity
         return self.kept_operators.get(input_key(None if x is None else np.asarray(x), mu),
-                                       lambda: load_operator(self.flow.corners(x), mu))
+                                       lambda: load_operator(self.flow.corners(x), mu, self.element))
 
     def _reaction(self, w, x, rho, params, Xe, partials: bool):
         """Element loads ``(E, 8)`` of the reaction form on the mesh moved by ``x`` (corners ``Xe``),
-        and with ``partials`` ``df/dw_e (E, 8, 22)`` and ``df/drho_e (E, 8)``; the flow's element
+        and with ``partials`` ``df/dw_e (E, 8, m)`` and ``df/drho_e (E, 8)``; the flow's element
         residuals (and Jacobians) are its kept evaluations at the same inputs."""
-        fl = self.flow
-        E = Xe.shape[0]
+        fl, k2, T = self.flow, self.k2, self.to_corners
         brinkman = fl.brinkman(params)
         alpha = brinkman(rho)
         psi = self.weight(rho, params)
@@ -146,20 +171,21 @@ class FluidForce:
             Re, Ke = fl.element_jacobians(w, x, rho, params)
         else:                                           # or its kept element residuals
             Re = fl.element_residuals(w, x, rho, params)
-        we = w[fl.dofs]
-        unit = brinkman_partial(Xe, we[:, :18].reshape(E, 9, 2))[:, :18]      # int N_b v_i (E, 18)
-        stress = Re[:, :18] - alpha[:, None] * unit                            # R_e without friction
+        A = brinkman_operator(Xe, self.element)
+        unit = np.einsum("eab,eb->ea", A, w[fl.dofs])                          # int N_b v_i (E, 2k)
+        stress = Re[:, :k2] - alpha[:, None] * unit                            # R_e without friction
         rows = self.free * ((alpha - brinkman.alpha_min)[:, None] * unit + psi[:, None] * stress)
-        fe = rows @ ROWS_TO_CORNERS.T
+        fe = rows @ T.T
         if not partials:
             return fe, None, None
-        A = brinkman_operator(Xe)
-        dstress = Ke[:, :18, :] - alpha[:, None, None] * A
-        dw = np.matmul(ROWS_TO_CORNERS, self.free[..., None]
+        dstress = Ke[:, :k2, :] - alpha[:, None, None] * A
+        dw = np.matmul(T, self.free[..., None]
                        * ((alpha - brinkman.alpha_min)[:, None, None] * A + psi[:, None, None] * dstress))
-        # the stress part does not depend on alpha: d rows/d alpha = free unit, d rows/d psi = free stress
-        dalpha = (self.free * unit) @ ROWS_TO_CORNERS.T
-        dpsi = (self.free * stress) @ ROWS_TO_CORNERS.T
+        # d rows/d alpha = free (unit + psi (dR/dalpha - unit)): Taylor-Hood's stress part does not
+        # depend on alpha (dR/dalpha = unit); the equal-order stabilization's does
+        dR = fl.alpha_vectors(w, x, rho, params)[:, :k2]
+        dalpha = (self.free * (unit + psi[:, None] * (dR - unit))) @ T.T
+        dpsi = (self.free * stress) @ T.T
         drho = brinkman.derivative(rho)[:, None] * dalpha + self.weight_derivative(rho, params)[:, None] * dpsi
         return fe, dw, drho
 
@@ -169,7 +195,7 @@ class FluidForce:
         return self.flow.evaluation_key(w, x, rho, params) + (self.form, partials)
 
     def elements(self, w, x, rho, params=None, partials: bool = False):
-        """``(f_e (E, 8), df_e/dw_e (E, 8, 22) or None, df_e/drho_e (E, 8) or None)`` at ``(w, x, rho)``.
+        """``(f_e (E, 8), df_e/dw_e (E, 8, m) or None, df_e/drho_e (E, 8) or None)`` at ``(w, x, rho)``.
 
         The last evaluation is kept (read-only), keyed by every input; an evaluation with the
         partials also serves a later one without them.
@@ -234,14 +260,19 @@ class FluidForce:
         psi = self.weight(rho, params)
         ve, pe = fl.split(w)
         Xe = fl.corners(x)
-        if self.form == "stress-divergence":
-            return stress_load_shape(Xe, ve, pe, fl.settings.viscosity) * psi[:, None, None]
+        el, we = self.element, w[fl.dofs]
+        if self.form != "reaction":                     # stress-divergence, pressure
+            if el.stress_load_shape is not None:
+                return el.stress_load_shape(Xe, ve, pe, self.viscosity) * psi[:, None, None]
+            return corner_derivatives(lambda X: np.einsum("eab,eb->ea", load_operator(X, self.viscosity, el), we),
+                                      Xe) * psi[:, None, None]
         brinkman = fl.brinkman(params)
         alpha = brinkman(rho)
-        dR = fl.shape_elements(w, x, rho, params)[1][:, :18]
-        drows = ((alpha - brinkman.alpha_min - psi * alpha)[:, None, None] * mass_shape(Xe, ve)
-                 + psi[:, None, None] * dR)
-        return np.matmul(ROWS_TO_CORNERS, self.free[..., None] * drows)
+        dR = fl.shape_elements(w, x, rho, params)[1][:, :self.k2]
+        dmass = (el.mass_shape(Xe, ve) if el.mass_shape is not None else
+                 corner_derivatives(lambda X: np.einsum("eab,eb->ea", brinkman_operator(X, el), we), Xe))
+        drows = (alpha - brinkman.alpha_min - psi * alpha)[:, None, None] * dmass + psi[:, None, None] * dR
+        return np.matmul(self.to_corners, self.free[..., None] * drows)
 
     def shape_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
         """``df/dx`` (2n x 2n)."""
