@@ -130,9 +130,8 @@ def analyse(problem: str, variant: str, output: Path) -> dict | None:
             "wall_time_s": result["wall_time_s"]}
 
 
-def cross_scores(problem: str, output: Path) -> list[dict]:
-    """Every variant's thresholded design scored by every variant's model."""
-    variants = list(PROBLEMS[problem][3])
+def cross_scores(problem: str, output: Path, variants) -> list[dict]:
+    """Every finished variant's thresholded design scored by every finished variant's model."""
     rows = []
     for design in variants:
         gamma = np.load(folder(output, problem, design) / "design.npy")
@@ -183,12 +182,13 @@ def main() -> None:
             vs = "-" if np.isnan(r["vs_published_percent"]) else f"{r['vs_published_percent']:+.2f} %"
             print(f"| {r['variant']} | {r['objective']:.5g} | {vs} | {r['non_discreteness_percent']:.1f} % | "
                   f"{r['thresholded']:.5g} | {r['iterations']} | {r['wall_time_s']:.0f} s |")
-        if problem == "TOFLUX wall" and len(rows) == len(variants):
+        done = [r["variant"] for r in rows]
+        if problem == "TOFLUX wall" and len(rows) > 1:
             print("\nthresholded designs (rows) scored by each model (columns)")
-            for r in cross_scores(problem, args.output):
-                print(" | ".join([r["design"]] + [f"{r[v]:.5g}" for v in variants]))
+            print("| design | " + " | ".join(done) + " |\n|---|" + "---|" * len(done))
+            for r in cross_scores(problem, args.output, done):
+                print("| " + " | ".join([r["design"]] + [f"{r[v]:.5g}" for v in done]) + " |")
         if args.pictures and rows:
-            done = [r["variant"] for r in rows]
             print("picture:", pictures(problem, done, args.output, args.pictures))
 
 

@@ -199,7 +199,7 @@ def test_borrvall_petersson_published_settings_reproduce_the_published_design(na
 def test_topflow_settings_reproduce_topflows_values(name, published, iterations, shape, tmp_path):
     """The shipped topFlow scenes as they are (Q1/Q1, OC and topFlow's rule on topFlow's mesh):
     topFlow's phi to 1e-4 and its number of OC steps (measured 9.18616, 22.09561 and 23.57316
-    after 66, 63 and 87; docs/optimization.md, section 2.3)."""
+    after 66, 63 and 87; docs/optimization.md, section 2.3b)."""
     if shape is None:
         opt = Optimizer(tofsi.Problem(load(name)), tmp_path / name)
         result = opt.run()
