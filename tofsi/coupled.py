@@ -27,7 +27,8 @@ import numpy as np
 from tofsi.block_system import BlockSystem, CouplingSettings
 from tofsi.blocks import Continuation, State
 from tofsi.channel import build_mesh
-from tofsi.errors import InputError
+from tofsi import quality
+from tofsi.errors import InputError, NumericalError
 from tofsi.fields import fluid_force
 from tofsi.linalg import LinearAlgebra
 from tofsi.load_ramp import ramped
@@ -133,11 +134,33 @@ class CoupledModel:
         c = self.scene.coupled
 
         def at(p: Continuation, start: State | None) -> State:
-            return self.system_for(p).solve(rho, p, start, progress)
+            return self.unfolded(self.system_for(p).solve(rho, p, start, progress))
         coupled = bool(self.system_for(params).cycles)    # one-way: the flow's Reynolds continuation
         with self.linear_algebra.blas():
             state = ramped(at, params, guess, c.min_load_step) if c.load_ramp and coupled else at(params, guess)
         state.reports["wall_time_s"] = time.perf_counter() - t0
+        return state
+
+    def unfolded(self, state: State) -> State:
+        """``state``, or a :class:`~tofsi.errors.NumericalError` when its moved fluid mesh folds:
+        an element whose bilinear map is not one-to-one (a corner Jacobian ``<= 0``: an
+        inverted or reflex corner, where the flow's element integrals are meaningless). A mover
+        may converge to such a mesh (the spring analogy and linear elasticity have no barrier
+        against it), so a coupled state is checked before it is used; the load ramp and the
+        optimizer's fallbacks then treat the fold as the failure it is."""
+        if state.x is None:
+            return state
+        moved = self.mesh.points + state.mesh_displacement
+        folded = np.flatnonzero(quality.inverted(moved, self.mesh.quads))
+        if folded.size:
+            skew = quality.skewness(moved, self.mesh.quads[folded])
+            worst = int(folded[np.argmin(skew)])
+            where = self.mesh.centroids[worst]                # on the reference grid
+            raise NumericalError(
+                f"the moved fluid mesh folds: {folded.size} elements not one-to-one (worst: element {worst} "
+                f"near ({where[0]:.3g}, {where[1]:.3g}) m, corner skewness {skew.min():.3f})",
+                {"folded_elements": int(folded.size), "element": worst, "location": where.tolist(),
+                 "min_skewness": float(skew.min())}, state=state)
         return state
 
     # ---- figures --------------------------------------------------------------------------
