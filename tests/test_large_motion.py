@@ -237,3 +237,22 @@ def test_a_stage_of_the_structure_model_schedule_solves_as_that_model():
     linear, finite = (tofsi.Problem(load("beam_in_channel_optimization", *base, f"structure.model={m}"))
                       for m in ("linear", "neo-hookean"))
     assert abs(linear.evaluate(gamma)[0] / finite.evaluate(gamma)[0] - 1) > 1e-4   # the models differ here
+
+
+def test_a_coupled_state_whose_mesh_folds_is_a_failure_naming_the_element():
+    """A converged two-way state passes unchanged; the same state with one node of the fluid mesh
+    pushed 1.5 elements across its neighbour (its four quads fold) raises, naming a folded element
+    (one of the four around that node) and the count."""
+    import dataclasses
+    model = CoupledModel(load("beam_in_channel_optimization_fsi", *WALL, "structure.youngs_modulus=1e6"))
+    state = model.solve(model.densities())
+    assert model.unfolded(state) is state
+    mesh = model.mesh
+    node = int(np.argmin(np.linalg.norm(mesh.points - [0.5, 0.5], axis=1)))     # an interior fluid node
+    x = state.x.copy()
+    x[2 * node] += 1.5 * 0.1
+    folded = dataclasses.replace(state, fields={**state.fields, "x": x})
+    with pytest.raises(NumericalError, match="the moved fluid mesh folds") as err:
+        model.unfolded(folded)
+    around = set(np.flatnonzero((mesh.quads == node).any(axis=1)))
+    assert err.value.diagnostic["element"] in around and 1 <= err.value.diagnostic["folded_elements"] <= 4
