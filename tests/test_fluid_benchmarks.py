@@ -203,7 +203,9 @@ def test_topflow_settings_reproduce_topflows_values(name, published, iterations,
     if shape is None:
         opt = Optimizer(tofsi.Problem(load(name)), tmp_path / name)
         result = opt.run()
-        assert fluid_at(opt, 0.8, 0.8, 0.05) > 0.9            # the bend's corner is fluid
+        assert fluid_at(opt, 0.5, 0.45, 0.05) > 0.9           # the pipe runs diagonally,
+        assert fluid_at(opt, 0.8, 0.8, 0.05) < 0.05           # not round the far corner,
+        assert fluid_at(opt, 0.3, 0.3, 0.05) < 0.05           # nor through the near one
     else:
         opt, result = optimize_with_topology(name, shape, tmp_path)
     assert result["objective"] == pytest.approx(published, rel=1e-4)
