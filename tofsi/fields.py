@@ -191,7 +191,7 @@ class StructureEntry(Field):
     """``u``: plane-strain elasticity with SIMP, loaded by the flow."""
 
     name, title, tables = "u", "structure", ("structure",)
-    summary = ("compliance", "max_displacement")
+    summary = ("compliance", "max_displacement", "max_solid_displacement")
     picture_names = ("deformed",)
 
     def active(self, scene, command="solve"):

@@ -123,7 +123,7 @@ def run(scene, args, ctx) -> dict:
         figures["newton_iterations"] = flow["newton_iterations"]
     for key in [k for field in model.fields for k in field.summary] + ["objective", "volume"]:
         if key in figures:
-            ctx.say(f"  {key.replace('_', ' '):18s} {figures[key]:.6g}")
+            ctx.say(f"  {key.replace('_', ' '):22s} {figures[key]:.6g}")
     ctx.begin()
     with ctx.step("writing solution.vtu and pictures"):
         write_state(ctx, model, state)
