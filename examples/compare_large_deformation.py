@@ -114,10 +114,10 @@ def last_state(folder: Path) -> State | None:
                  fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})
 
 
-def reference(gamma, folder: Path | None = None) -> tuple[float, float]:
-    """``(compliance [J/m], largest displacement of the solid [m])`` of design ``gamma`` judged
-    by the common reference (finite strain, Yeoh, density-grown layers, tight tolerances) at
-    the schedule's last stage; NaN if it fails.
+def reference(gamma, folder: Path | None = None) -> tuple[float, float, str]:
+    """``(compliance [J/m], largest displacement of the solid [m], "")`` of design ``gamma``
+    judged by the common reference (finite strain, Yeoh, density-grown layers, tight
+    tolerances) at the schedule's last stage; ``(NaN, NaN, why)`` if its solve fails.
 
     The solve starts from the last state of the run that made the design (``folder``): at
     this motion the coupled problem has more than one solution, and the inflow ramped from
@@ -130,9 +130,10 @@ def reference(gamma, folder: Path | None = None) -> tuple[float, float]:
         problem.set_guess(last_state(folder))
     try:
         state = problem.solve(np.asarray(gamma, dtype=float))
-    except NumericalError:
-        return float("nan"), float("nan")
-    return problem.objective.value(problem.model, state), problem.model.figures(state)["max_solid_displacement"]
+    except NumericalError as err:
+        return float("nan"), float("nan"), str(err)
+    figures = problem.model.figures(state)
+    return problem.objective.value(problem.model, state), figures["max_solid_displacement"], ""
 
 
 def tuned_layers(mover: str, motion: float) -> list[float]:
@@ -160,8 +161,8 @@ def case(job) -> dict:
 
 def judge(row: dict, folder: Path) -> None:
     """The reference's compliance and solid displacement of a row's design (NaN without one)."""
-    row["reference_compliance"], row["reference_solid_displacement"] = (
-        reference(row["design"], folder) if row["design"] is not None else (float("nan"),) * 2)
+    row["reference_compliance"], row["reference_solid_displacement"], row["reference_error"] = (
+        reference(row["design"], folder) if row["design"] is not None else (float("nan"), float("nan"), "no design"))
 
 
 def case_folder(output: Path, mover: str, stiffening: str, constraint: bool) -> Path:
@@ -184,7 +185,9 @@ def table(rows: list[dict], extra: dict) -> str:
                      f"{r['min_skewness_over_run']:.3f} | {r['compliance']:.4g} | {r['reference_compliance']:.4g} | "
                      f"{r['reference_solid_displacement']:.3g} | {r['wall_time_s']:.0f} |")
     lines += ["", "| design | own model [J/m] | re-evaluated [J/m] | by |", "|---|---|---|---|"]
-    lines += [f"| {name} | {e['own']:.4g} | {e['reference']:.4g} | {e['by']} |" for name, e in extra.items()]
+    lines += [f"| {name} | {e['own']:.4g}{' (failed: ' + short(e['error']) + ')' if e.get('error') else ''} | "
+              f"{e['reference']:.4g}{' (' + short(e['reference_error']) + ')' if e.get('reference_error') else ''} | "
+              f"{e['by']} |" for name, e in extra.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -251,9 +254,9 @@ def extras(output: Path) -> dict:
     out = {}
     for name, (overrides, by, folder) in EXTRA.items():
         run = optimize(["mover.name=yeoh", *overrides], output / folder)
-        if run["design"] is not None:
-            out[name] = {"own": run["compliance"], "by": by,
-                         "reference": reference(run["design"], output / folder)[0]}
+        judged = reference(run["design"], output / folder) if run["design"] is not None else (0, 0, "no design")
+        out[name] = {"own": run["compliance"], "by": by, "reference": judged[0], "error": run["error"],
+                     "reference_error": judged[2]}
     return out
 
 
@@ -267,9 +270,12 @@ def rescore(output: Path, redo_extras: bool = False) -> None:
     record["extra"] = {n: {k: nan if v is None else v for k, v in e.items()} for n, e in record["extra"].items()}
     for r in record["rows"]:
         judge(r, case_folder(output, r["mover"], r["stiffening"], r["constraint"]))
-    record["extra"] = extras(output) if redo_extras else {
-        name: {**e, "reference": reference(np.load(output / EXTRA[name][2] / "design.npy"), output / EXTRA[name][2])[0]}
-        for name, e in record["extra"].items()}
+    if redo_extras:
+        record["extra"] = extras(output)
+    else:
+        for name, e in record["extra"].items():
+            folder = output / EXTRA[name][2]
+            e["reference"], _, e["reference_error"] = reference(np.load(folder / "design.npy"), folder)
     report(output, record["rows"], record["extra"], record["tuned_layers"], record["reference"])
 
 
