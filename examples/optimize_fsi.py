@@ -92,14 +92,21 @@ def optimize_scene(scene_file: Path, output: Path, overrides=(), overwrite: bool
     return result
 
 
-if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--output", type=Path, default=Path("results/beam_in_channel_optimization_fsi"))
+def command_line(doc: str, run, default: Path) -> None:
+    """An example's command line: ``--output`` (default ``default``), ``--set KEY=VALUE``,
+    ``--overwrite``; ``run(output, overrides, overwrite)``; bad input exits 2, a file not
+    written 4, with one line on stderr."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--output", type=Path, default=default)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--overwrite", action="store_true", help="replace another run's files in --output")
     args = parser.parse_args()
     try:
-        main(args.output, args.set, args.overwrite)
+        run(args.output, args.set, args.overwrite)
     except (InputError, WriteError) as err:          # bad input (2), a file not written (4)
         print(f"error: {err}", file=sys.stderr)
         sys.exit(err.exit_status)
+
+
+if __name__ == "__main__":
+    command_line(__doc__, main, default=Path("results/beam_in_channel_optimization_fsi"))
