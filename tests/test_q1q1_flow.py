@@ -103,3 +103,14 @@ def test_poiseuille_flow_converges_at_second_order(density):
     assert velocity[-1] < 3e-3 * U
     assert np.all(rates(drop, hs) > 1.0), drop
     assert drop[-1] < 0.015 * 8 * mu * U * L / H**2
+
+
+def test_the_distributed_flow_refuses_the_equal_order_element_before_needing_petsc():
+    """The PETSc slab assembly runs the Taylor-Hood kernel: a Q1/Q1 flow is refused by name (with or
+    without petsc4py installed), not assembled with the wrong element."""
+    from tofsi.errors import InputError
+    from tofsi.parallel.flow_system import DistributedFlow
+    mesh = StructuredQuadMesh(np.linspace(0, 2, 9), np.linspace(0, 1, 5))
+    flow = Flow(mesh, FluidSettings(element="q1q1", outlet="zero-pressure"))
+    with pytest.raises(InputError, match="fluid.element"):
+        DistributedFlow(flow)

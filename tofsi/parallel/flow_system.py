@@ -77,6 +77,9 @@ class DistributedFlow:
     """
 
     def __init__(self, flow, comm=None, amg: str = "gamg", rtol: float = 1e-10):
+        if flow.element.name != "q2q1":
+            raise InputError("fluid.element", flow.element.name, "q2q1 for the distributed flow (its kernel "
+                             "and its Schur complement approximation are Taylor-Hood's)")
         PETSc = _petsc()
         if flow.body_force is not None or not flow.open_outlet:
             raise InputError("solver.linear_solver", "petsc-distributed",
