@@ -5,6 +5,7 @@ import numpy as np
 from tofsi.fem.geometry import map_points, physical_gradients
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
+from tofsi.mesh import StructuredQuadMesh
 
 PI = np.pi
 
@@ -87,3 +88,15 @@ def errors(flow, w, exact, x=None):
 def rates(errs, hs):
     e, h = np.asarray(errs), np.asarray(hs)
     return np.log(e[:-1] / e[1:]) / np.log(h[:-1] / h[1:])
+
+
+def unit_square(n, moved=False):
+    """The n x n unit-square mesh and, with ``moved``, a smooth interior mesh motion ``x`` that
+    keeps the boundary (an ALE-moved mesh for the manufactured solutions); else ``x = None``."""
+    mesh = StructuredQuadMesh(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1))
+    x = None
+    if moved:
+        X = mesh.points
+        bump = np.sin(PI * X[:, 0]) * np.sin(PI * X[:, 1])
+        x = 0.08 * np.column_stack([bump * np.cos(2 * X[:, 1]), 0.6 * bump * np.sin(3 * X[:, 0])])
+    return mesh, x

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from flow_cases import Kovasznay, Manufactured, errors, rates
+from flow_cases import Kovasznay, Manufactured, errors, rates, unit_square
 from tofsi.errors import NumericalError
 from tofsi.grading import graded_axis
 from tofsi.mesh import StructuredQuadMesh
@@ -34,16 +34,6 @@ def test_poiseuille_is_exact_on_a_graded_mesh(stokes):
     figs = flow.figures(w)
     assert figs["pressure_drop"] == pytest.approx(-dpdx * L, rel=1e-12)
     assert figs["viscous_dissipation"] == pytest.approx(mu * L * 16 * U**2 / (3 * H), rel=1e-12)
-
-
-def unit_square(n, moved=False):
-    mesh = StructuredQuadMesh(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1))
-    x = None
-    if moved:              # a smooth interior motion; the boundary stays
-        X = mesh.points
-        bump = np.sin(PI * X[:, 0]) * np.sin(PI * X[:, 1])
-        x = 0.08 * np.column_stack([bump * np.cos(2 * X[:, 1]), 0.6 * bump * np.sin(3 * X[:, 0])])
-    return mesh, x
 
 
 PI = np.pi

@@ -9,7 +9,7 @@ meshes). Taylor-Hood gives 3, 2, 2 on the same problems (tests/test_flow.py).
 import numpy as np
 import pytest
 
-from flow_cases import Manufactured, rates
+from flow_cases import Manufactured, rates, unit_square
 from tofsi.fem.geometry import map_points, physical_gradients
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
@@ -23,12 +23,7 @@ PI = np.pi
 def box(n, exact, density, symmetric=False, moved=False):
     """The manufactured flow on the unit square (closed box, the exact velocity on its sides),
     with the gradient or the strain-rate viscous form, on the reference or an ALE-moved mesh."""
-    mesh = StructuredQuadMesh(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1))
-    x = None
-    if moved:                                          # a smooth interior motion; the boundary stays
-        X = mesh.points
-        bump = np.sin(PI * X[:, 0]) * np.sin(PI * X[:, 1])
-        x = 0.08 * np.column_stack([bump * np.cos(2 * X[:, 1]), 0.6 * bump * np.sin(3 * X[:, 0])])
+    mesh, x = unit_square(n, moved)
     settings = FluidSettings(element="q1q1", density=density, viscosity=exact.mu, alpha_min=exact.alpha,
                              alpha_max=max(exact.alpha, 1.0),
                              outlet="traction-free" if symmetric else "zero-pressure")
