@@ -153,7 +153,7 @@ def test_a_failing_first_design_of_a_later_stage_is_bridged_halfway_and_the_run_
 
 def test_bridge_takes_every_continued_parameter_halfway():
     from tofsi.blocks import Continuation
-    from tofsi.optimize import bridge
+    from tofsi.stages import bridge
     a, b = Continuation(beta=4.0, penalty=3.0, brinkman_q=0.0), Continuation(beta=16.0, penalty=3.0,
                                                                             brinkman_q=0.1, coupling="two-way")
     assert bridge(a, b) == Continuation(beta=8.0, penalty=3.0, brinkman_q=0.05, coupling="two-way")

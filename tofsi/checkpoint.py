@@ -27,7 +27,7 @@ SUCCESS_ARRAYS = ("gamma", "df", "g", "dg")
 
 
 def write_checkpoint(path, problem, run, history, state: State) -> None:
-    """The running stage ``run`` (:class:`tofsi.optimize.StageRun`), the ``history`` rows and the
+    """The running stage ``run`` (:class:`tofsi.stages.StageRun`), the ``history`` rows and the
     last computed ``state`` of ``problem`` into ``path``."""
     arrays, failures = {}, {}
     for k, e in enumerate(run.log):

@@ -50,9 +50,8 @@ system's (``model.system.names``).
 from __future__ import annotations
 
 import logging
-import math
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import nlopt
@@ -65,6 +64,7 @@ from tofsi.coupled import continuation
 from tofsi.errors import InputError, NumericalError
 from tofsi.oc import oc_step
 from tofsi.output import atomic_write, write_csv, write_json
+from tofsi.stages import StageRun, StageStartFailed, bridge
 
 log = logging.getLogger(__name__)
 ALGORITHMS = {"MMA": nlopt.LD_MMA, "CCSAQ": nlopt.LD_CCSAQ}
@@ -103,32 +103,6 @@ class TrialFailed(Exception):
         self.error = error
 
 
-class StageStartFailed(Exception):
-    """A stage's first design failed: no good design of the stage to fall back to (``error``)."""
-
-    def __init__(self, error: NumericalError):
-        super().__init__(str(error))
-        self.error = error
-
-
-CONTINUED = ("beta", "penalty", "brinkman_q")     # the parameters a bridging stage takes halfway
-
-
-def bridge(previous: Continuation | None, target: Continuation) -> Continuation | None:
-    """The stage record halfway from ``previous`` to ``target``: the geometric mean of each
-    continued parameter that differs (the arithmetic one where either is 0), the rest as
-    ``target``; None when there is nothing to bridge (no previous stage, or the two records
-    differ by less than 5 % in every continued parameter)."""
-    if previous is None:
-        return None
-    halfway = {}
-    for name in CONTINUED:
-        a, b = getattr(previous, name), getattr(target, name)
-        if abs(b - a) > 0.05 * max(abs(a), abs(b)):
-            halfway[name] = math.sqrt(a * b) if a > 0 and b > 0 else 0.5 * (a + b)
-    return replace(target, **halfway) if halfway else None
-
-
 def stop_reason(result: int) -> str:
     """Why NLopt ended a stage: ``max_iter`` (the evaluation budget) or NLopt's own reason."""
     if result == nlopt.MAXEVAL_REACHED:
@@ -149,27 +123,6 @@ def mesh_quality(mesh, state) -> tuple[float, float, float]:
 def non_discreteness(rho: np.ndarray) -> float:
     """Measure of non-discreteness ``4 sum rho (1 - rho) / n`` in percent (0: black and white)."""
     return float(400.0 * np.mean(rho * (1.0 - rho)))
-
-
-@dataclass
-class StageRun:
-    """The running continuation stage: its number and start, the scale of its objective (its
-    first value), its evaluations so far (checkpointed; failed trials too), the evaluations a
-    resume replays, the last good evaluation (NLopt asks for the objective and the constraints
-    at one point; a fallback returns to it) and the failures in a row."""
-
-    stage: int
-    start: np.ndarray
-    scale: float | None = None
-    log: list = field(default_factory=list)
-    replay: list = field(default_factory=list)
-    last: tuple | None = None                   # (gamma, entry) of the last good evaluation
-    failures_in_a_row: int = 0
-    fallbacks_at_start: int = 0                 # the run's fallbacks before the stage
-    params: Continuation | None = None          # the record it runs with (a bridge's, or the stage's)
-    pending: list = field(default_factory=list)  # records of this stage still to run after it (bridges)
-    previous: Continuation | None = None        # the record of the stage (or bridge) before it
-    first_row: int = 0                          # its first row in the history
 
 
 class Optimizer:
