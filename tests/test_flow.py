@@ -218,3 +218,22 @@ def test_the_chunked_kernel_gives_the_one_call_values_bitwise():
         chunked = fluid_elements(Xe, ve, pe, alpha, 1.0, 0.1, False, jacobian, chunk=7)
         assert np.array_equal(whole[0], chunked[0])
         assert (whole[1] is None and chunked[1] is None) or np.array_equal(whole[1], chunked[1])
+
+
+@pytest.mark.parametrize("symmetric", [False, True])
+@pytest.mark.parametrize("density", [0.0, 1.3])
+def test_the_element_layout_kernel_equals_the_block_by_block_kernel(symmetric, density):
+    """The kernel that builds the velocity block in the element matrix's layout against the
+    block-by-block formulation (residuals and Jacobians, real and complex-step corners)."""
+    from fluid_kernel_by_blocks import fluid_element_by_blocks
+    from tofsi.physics.fluid_kernel import fluid_element
+    rng = np.random.default_rng(5)
+    E = 50
+    Xe = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)[None] * 0.1 + 0.02 * rng.random((E, 4, 2))
+    ve, pe, alpha = rng.normal(size=(E, 9, 2)), rng.normal(size=(E, 4)), 1e3 * rng.random(E)
+    for X in (Xe, Xe + 1e-30j * rng.random((E, 4, 2))):
+        R, K = fluid_element(X, ve, pe, alpha, density, 0.7, symmetric)
+        R0, K0 = fluid_element_by_blocks(X, ve, pe, alpha, density, 0.7, symmetric)
+        np.testing.assert_allclose(R, R0, rtol=0, atol=1e-13 * np.abs(R0).max())
+        np.testing.assert_allclose(K, K0, rtol=0, atol=1e-13 * np.abs(K0).max())
+        np.testing.assert_allclose(K.imag, K0.imag, rtol=0, atol=1e-13 * max(np.abs(K0.imag).max(), 1e-300))

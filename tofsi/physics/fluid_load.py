@@ -40,8 +40,11 @@ changes neither the compliance nor the design):
     f_(a i) = -sum_e psi_e int_e [p dM_a/dx_i + M_a dp/dx_i].
 
 Every form gives its element loads and their partial derivatives with
-respect to ``w`` and ``rho`` from one kernel call, and with respect to the
-mesh position analytically for Taylor-Hood (:mod:`tofsi.physics.fluid_shape`;
+respect to ``rho`` from the flow's kept element evaluation (no kernel call of
+its own); the partial with respect to ``w`` is formed per element only for
+the assembled block (two-way Newton), the adjoint's product with its
+transpose is taken element by element without it; the partial with respect
+to the mesh position is analytic for Taylor-Hood (:mod:`tofsi.physics.fluid_shape`;
 the tests check them against the complex step through the same kernels) and
 by the complex step for equal order.
 """
@@ -100,11 +103,17 @@ def load_operator(Xe: np.ndarray, viscosity: float, element=TaylorHood) -> np.nd
     return out
 
 
+def brinkman_mass(Xe: np.ndarray, element=TaylorHood) -> np.ndarray:
+    """``int_e N_b N_c`` ``(E, k, k)`` [m^2], the velocity mass per component (complex-safe in ``Xe``)."""
+    N = element.N
+    _, det = physical_gradients(Xe, 1, element.POINTS)
+    return np.matmul((N[None] * (det * element.WEIGHTS)[..., None]).transpose(0, 2, 1), N)
+
+
 def brinkman_operator(Xe: np.ndarray, element=TaylorHood) -> np.ndarray:
     """``A_e`` ``(E, 2k, 2k + 4)``: ``A[2b+i, 2c+i] = int_e N_b N_c`` [m^2] (complex-safe in ``Xe``)."""
-    N, k = element.N, element.nodes_per_element
-    _, det = physical_gradients(Xe, 1, element.POINTS)
-    NN = np.matmul((N[None] * (det * element.WEIGHTS)[..., None]).transpose(0, 2, 1), N)   # (E, k, k)
+    k = element.nodes_per_element
+    NN = brinkman_mass(Xe, element)
     A = np.zeros((Xe.shape[0], 2 * k, 2 * k + 4), dtype=NN.dtype)
     A[:, 0:2 * k:2, 0:2 * k:2] = NN
     A[:, 1:2 * k:2, 1:2 * k:2] = NN
@@ -129,7 +138,9 @@ class FluidForce:
         self.size = 2 * flow.mesh.n_nodes
         self.free = (~flow.bc.is_fixed[flow.dofs[:, :self.k2]]).astype(float)  # (E, 2k)
         self.kept_operators = Kept()      # B of the stress-divergence form on the last mesh
-        self.kept_values = Kept()         # element loads (and partials) of the last evaluation
+        self.kept_values = Kept()         # element loads (and density partials) of the last evaluation
+        self.kept_fluid = Kept()          # df_e/dw_e of the last evaluation (for the assembled df/dw)
+        self.kept_parts = Kept()          # the reaction form's pieces at the last state
         self.kept_shape = Kept()          # df_e/dXe of the last shape evaluation
         self._fluid_pattern = None        # CSR patterns of df/dw and df/dx (made on first use)
         self._shape_pattern = None
@@ -159,35 +170,42 @@ class FluidForce:
         return self.kept_operators.get(input_key(None if x is None else np.asarray(x), mu),
                                        lambda: load_operator(self.flow.corners(x), mu, self.element))
 
-    def _reaction(self, w, x, rho, params, Xe, partials: bool):
-        """Element loads ``(E, 8)`` of the reaction form on the mesh moved by ``x`` (corners ``Xe``),
-        and with ``partials`` ``df/dw_e (E, 8, m)`` and ``df/drho_e (E, 8)``; the flow's element
-        residuals (and Jacobians) are its kept evaluations at the same inputs."""
-        fl, k2, T = self.flow, self.k2, self.to_corners
+    def _reaction_parts(self, w, x, rho, params, Xe):
+        """The pieces of the reaction form per element: the velocity mass ``NN`` ``(E, k, k)``,
+        ``unit = A_e w_e`` ``(E, 2k)``, the friction-free residual ``stress`` ``(E, 2k)``, the
+        weights ``alpha``, ``psi`` and the mass coefficient ``c = alpha - alpha_min - psi alpha``
+        of ``rows_e = free (c A_e w_e + psi R_e)``; the flow's element residuals are its kept
+        evaluation at the same inputs. Kept (read-only), keyed by every input: the load, its
+        density partials and the adjoint's product at one state share them."""
+        return self.kept_parts.get(self.evaluation_key(w, x, rho, params, False) + ("parts",),
+                                   lambda: self._new_reaction_parts(w, x, rho, params, Xe))
+
+    def _new_reaction_parts(self, w, x, rho, params, Xe):
+        fl, k2 = self.flow, self.k2
         brinkman = fl.brinkman(params)
         alpha = brinkman(rho)
         psi = self.weight(rho, params)
-        if partials:                                    # the flow's kept element Jacobians
-            Re, Ke = fl.element_jacobians(w, x, rho, params)
-        else:                                           # or its kept element residuals
-            Re = fl.element_residuals(w, x, rho, params)
-        A = brinkman_operator(Xe, self.element)
-        unit = np.einsum("eab,eb->ea", A, w[fl.dofs])                          # int N_b v_i (E, 2k)
+        Re = fl.element_residuals(w, x, rho, params)
+        NN = brinkman_mass(Xe, self.element)
+        unit = np.matmul(NN, w[fl.dofs][:, :k2].reshape(len(NN), -1, 2)).reshape(len(NN), k2)   # int N_b v_i
         stress = Re[:, :k2] - alpha[:, None] * unit                            # R_e without friction
-        rows = self.free * ((alpha - brinkman.alpha_min)[:, None] * unit + psi[:, None] * stress)
-        fe = rows @ T.T
+        return NN, unit, stress, alpha, psi, alpha - brinkman.alpha_min - psi * alpha
+
+    def _reaction(self, w, x, rho, params, Xe, partials: bool):
+        """Element loads ``(E, 8)`` of the reaction form on the mesh moved by ``x`` (corners ``Xe``),
+        and with ``partials`` ``df/drho_e (E, 8)``."""
+        fl, T = self.flow, self.to_corners
+        _, unit, stress, alpha, psi, _ = self._reaction_parts(w, x, rho, params, Xe)
+        brinkman = fl.brinkman(params)
+        fe = (self.free * ((alpha - brinkman.alpha_min)[:, None] * unit + psi[:, None] * stress)) @ T.T
         if not partials:
-            return fe, None, None
-        dstress = Ke[:, :k2, :] - alpha[:, None, None] * A
-        dw = np.matmul(T, self.free[..., None]
-                       * ((alpha - brinkman.alpha_min)[:, None, None] * A + psi[:, None, None] * dstress))
+            return fe, None
         # d rows/d alpha = free (unit + psi (dR/dalpha - unit)): Taylor-Hood's stress part does not
         # depend on alpha (dR/dalpha = unit); the equal-order stabilization's does
-        dR = fl.alpha_vectors(w, x, rho, params)[:, :k2]
+        dR = fl.alpha_vectors(w, x, rho, params)[:, :self.k2]
         dalpha = (self.free * (unit + psi[:, None] * (dR - unit))) @ T.T
         dpsi = (self.free * stress) @ T.T
-        drho = brinkman.derivative(rho)[:, None] * dalpha + self.weight_derivative(rho, params)[:, None] * dpsi
-        return fe, dw, drho
+        return fe, brinkman.derivative(rho)[:, None] * dalpha + self.weight_derivative(rho, params)[:, None] * dpsi
 
     def evaluation_key(self, w, x, rho, params, partials: bool) -> tuple:
         """Every input of an element evaluation: the flow's (:meth:`Flow.evaluation_key`, its
@@ -195,7 +213,7 @@ class FluidForce:
         return self.flow.evaluation_key(w, x, rho, params) + (self.form, partials)
 
     def elements(self, w, x, rho, params=None, partials: bool = False):
-        """``(f_e (E, 8), df_e/dw_e (E, 8, m) or None, df_e/drho_e (E, 8) or None)`` at ``(w, x, rho)``.
+        """``(f_e (E, 8), df_e/drho_e (E, 8) or None)`` at ``(w, x, rho)``.
 
         The last evaluation is kept (read-only), keyed by every input; an evaluation with the
         partials also serves a later one without them.
@@ -211,11 +229,27 @@ class FluidForce:
         rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
         if self.form == "reaction":
             return self._reaction(w, x, rho, params, self.flow.corners(x), partials)
-        B = self.stress_operators(x)
-        Bw = np.einsum("eab,eb->ea", B, w[self.flow.dofs])
-        psi = self.weight(rho, params)
-        return (Bw * psi[:, None], B * psi[:, None, None] if partials else None,
+        Bw = np.einsum("eab,eb->ea", self.stress_operators(x), w[self.flow.dofs])
+        return (Bw * self.weight(rho, params)[:, None],
                 Bw * self.weight_derivative(rho, params)[:, None] if partials else None)
+
+    def fluid_elements(self, w, x, rho, params=None) -> np.ndarray:
+        """``df_e/dw_e`` ``(E, 8, m)`` at ``(w, x, rho)`` (kept, read-only, keyed by every input):
+        reaction ``T free (c A_e + psi K_e)`` with the flow's kept element Jacobians ``K_e``;
+        stress forms ``psi_e B_e``. Only the assembled ``df/dw`` needs it; the adjoint's
+        product :meth:`fluid_partial_transpose` does not."""
+        return self.kept_fluid.get(self.evaluation_key(w, x, rho, params, True),
+                                   lambda: self._fluid_elements(w, x, rho, params))
+
+    def _fluid_elements(self, w, x, rho, params):
+        rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        if self.form != "reaction":
+            return self.stress_operators(x) * self.weight(rho, params)[:, None, None]
+        Xe = self.flow.corners(x)
+        _, _, _, _, psi, c = self._reaction_parts(w, x, rho, params, Xe)
+        Ke = self.flow.element_jacobians(w, x, rho, params)[1]
+        rows = psi[:, None, None] * Ke[:, :self.k2, :] + c[:, None, None] * brinkman_operator(Xe, self.element)
+        return np.matmul(self.to_corners, self.free[..., None] * rows)
 
     # ---- global quantities ----------------------------------------------------------------------
     def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
@@ -231,16 +265,29 @@ class FluidForce:
         """``df/dw`` (2n x size of w)."""
         if self._fluid_pattern is None:
             self._fluid_pattern = SparsePattern(self.dofs, self.flow.dofs, (self.size, self.flow.size))
-        return self._fluid_pattern.assemble(self.elements(w, x, rho, params, partials=True)[1])
+        return self._fluid_pattern.assemble(self.fluid_elements(w, x, rho, params))
 
     def fluid_partial_transpose(self, lam, w, x, rho, params=None) -> np.ndarray:
-        """``(df/dw)^T lam`` (size of w) without assembling ``df/dw``."""
-        dw = self.elements(w, x, rho, params, partials=True)[1]
-        return assemble_vector(self.flow.dofs, np.einsum("eab,ea->eb", dw, lam[self.dofs]), self.flow.size)
+        """``(df/dw)^T lam`` (size of w) element by element, without forming ``df_e/dw_e``: with
+        ``nu_e = free (T^T lam_e)``, the reaction form's is ``psi_e K_e^T nu_e + c_e A_e^T nu_e``
+        (``A_e^T nu_e`` is the velocity mass on each component), the stress forms' ``psi_e B_e^T lam_e``."""
+        fl = self.flow
+        rho = np.zeros(fl.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        lam_e = lam[self.dofs]                                                   # (E, 8)
+        if self.form != "reaction":
+            ve = np.einsum("eab,ea->eb", self.stress_operators(x), lam_e) * self.weight(rho, params)[:, None]
+            return assemble_vector(fl.dofs, ve, fl.size)
+        NN, _, _, _, psi, c = self._reaction_parts(w, x, rho, params, fl.corners(x))
+        Ke = fl.element_jacobians(w, x, rho, params)[1]
+        nu = self.free * (lam_e @ self.to_corners)                               # (E, 2k)
+        ve = psi[:, None] * np.einsum("ea,eab->eb", nu, Ke[:, :self.k2, :])
+        mass = np.matmul(np.swapaxes(NN, 1, 2), nu.reshape(len(nu), -1, 2)).reshape(len(nu), self.k2)
+        ve[:, :self.k2] += c[:, None] * mass
+        return assemble_vector(fl.dofs, ve, fl.size)
 
     def density_vectors(self, w, x, rho, params=None) -> np.ndarray:
         """``df_e/drho_e`` ``(E, 8)``."""
-        return self.elements(w, x, rho, params, partials=True)[2]
+        return self.elements(w, x, rho, params, partials=True)[1]
 
     def shape_elements(self, w, x, rho, params=None) -> np.ndarray:
         """``df_e/dXe`` ``(E, 8, 8)``, analytic (:mod:`tofsi.physics.fluid_shape`).
