@@ -1,9 +1,11 @@
 """The iterative flow solve (block-preconditioned FGMRES) against the sparse LU, forward and transposed.
 
-Tolerance stated: FGMRES to a scaled relative residual of 1e-10 gives the
-velocity to 1e-7 and the pressure to 1e-4 relative to the LU solution (measured
-1e-9 and 2e-6 .. 7e-6 at alpha_max = 1e5); the pressure is the less accurate
-part because the Schur complement is ``1/alpha`` small in solid elements.
+Tolerance stated: FGMRES to a scaled relative residual ``tol`` gives the
+velocity to ``1e3 tol`` and the pressure to ``1e6 tol`` relative to the LU
+solution (measured at alpha_max = 1e5: 1e-9 and 2e-6 .. 7e-6 at the forward
+solves' 1e-10, 3e-7 and 4e-5 .. 1.1e-3 at the transposed (adjoint) solves'
+1e-8); the pressure is the less accurate part because the Schur complement
+is ``1/alpha`` small in solid elements.
 """
 
 import numpy as np
@@ -12,7 +14,7 @@ import scipy.sparse as sp
 
 import tofsi
 from tofsi.linalg import DirectSolver, RecyclingSolver
-from tofsi.linalg.iterative import BlockSaddlePreconditioner
+from tofsi.linalg.iterative import TRANSPOSE_TOL, BlockSaddlePreconditioner
 from tofsi.mesh import StructuredQuadMesh
 from tofsi.physics.flow import Flow
 from tofsi.physics.flow_preconditioner import flow_preconditioner, schur_parts
@@ -49,11 +51,11 @@ def test_fgmres_matches_the_lu_forward_and_transposed(alpha_max, pressure_solver
     flow, rho, J, b = converged_jacobian(alpha_max)
     P = flow_preconditioner(flow, J, None, rho, pressure_solver=pressure_solver)
     lu = DirectSolver(J)
-    for iterative, direct in ((P.solve, lu.solve), (P.solve_transpose, lu.solve_transpose)):
+    for iterative, direct, tol in ((P.solve, lu.solve, P.tol), (P.solve_transpose, lu.solve_transpose, P.transpose_tol)):
         x = iterative(b)
         assert 5 < P.iterations < 200
         velocity, pressure = relative_errors(flow, x, direct(b))
-        assert velocity < 1e-7 and pressure < 1e-4, (velocity, pressure)
+        assert velocity < 1e3 * tol and pressure < 1e6 * tol, (velocity, pressure)
 
 
 def test_the_recycling_solver_keeps_the_preconditioner_for_newton_and_adjoint():
@@ -69,7 +71,7 @@ def test_the_recycling_solver_keeps_the_preconditioner_for_newton_and_adjoint():
     assert solver.factorizations == 1
     assert np.linalg.norm(J @ x - b) <= 1e-9 * np.linalg.norm(b)
     assert np.linalg.norm(J2 @ x2 - b) <= 1e-9 * np.linalg.norm(b)
-    assert relative_errors(flow, xt, lu.solve_transpose(b))[0] < 1e-6
+    assert relative_errors(flow, xt, lu.solve_transpose(b))[0] < 1e3 * TRANSPOSE_TOL
 
 
 def test_pinned_pressure_of_a_closed_box_is_kept():
@@ -103,3 +105,21 @@ def test_schur_parts_are_the_lumped_masses():
     assert free.any()
     values = np.unique(np.round(weights[free], 12))
     assert set(values) <= {round(9 / 900.0, 12), round(9 / 1800.0, 12)}
+
+
+def test_a_nearly_symmetric_velocity_block_lends_its_hierarchy_to_the_transpose():
+    """At Re 1 the velocity block is symmetric to 0.5 %: the transposed solve takes the
+    hierarchy of ``A`` (no second setup) and still matches the LU; at Re 10 (5 %) it builds
+    the hierarchy of ``A^T``."""
+    for density, shared in ((1.0, True), (10.0, False)):
+        h = 2.0 / 40
+        scene = tofsi.load_scene(SCENE, [f"mesh.h_min={h}", f"mesh.h_max={h}", f"fluid.density={density}"])
+        flow = tofsi.Problem(scene).model.flow
+        rho = np.where(flow.mesh.centroids[:, 0] > 1.0, 0.0, 0.4)
+        w, _ = flow.solve(None, rho)
+        J = flow.jacobian(w, None, rho)[0]
+        P = flow_preconditioner(flow, J, None, rho)
+        assert (P.asymmetry <= 1e-2) == shared, P.asymmetry
+        b = np.random.default_rng(2).standard_normal(J.shape[0]) * ~flow.bc.is_fixed
+        x = P.solve_transpose(b)
+        assert np.linalg.norm(J.T @ x - b) <= 1e-6 * np.linalg.norm(b)
