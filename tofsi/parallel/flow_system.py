@@ -110,7 +110,6 @@ class DistributedFlow:
         self.krylov_iterations = 0
         self.assembled = False
         self.linearized_at = None         # (x, rho, params) of the converged self.mat
-        self.mat_t = None                 # its transpose, for the adjoint
         self.transposed_iterations = 0
 
     def _row_counts(self):
@@ -270,16 +269,16 @@ class DistributedFlow:
         """``lam`` with ``J_c^T lam = b`` on the converged constrained Jacobian of the last
         :meth:`solve` (``b``'s fixed entries zeroed, so ``lam``'s are zero: the serial
         adjoint's homogenized multipliers), to ``|b - J_c^T lam| <= rtol |b|``: FGMRES with
-        the Schur fieldsplit of the explicitly transposed matrix ``J_c^T`` (kept, refilled in
-        place at each call: one more matrix while the adjoint runs). PETSc 3.18's transposed
+        the Schur fieldsplit of the explicitly transposed matrix ``J_c^T`` (one more matrix
+        while the adjoint runs; freed with its hierarchies on return). PETSc 3.18's transposed
         fieldsplit application (``KSPSolveTranspose``) stagnates at 1e-4 after 1000
         iterations on a Navier-Stokes Jacobian, hence the explicit transpose."""
         if self.linearized_at is None:
             raise NumericalError("distributed flow adjoint: no converged solve to transpose", {})
         lo, _ = self.part.owned
         b.getArray()[self.fixed_owned - lo] = 0.0
-        self.mat_t = self.mat.transpose(_petsc().Mat() if self.mat_t is None else self.mat_t)   # (None: in place)
-        ksp = self._ksp(self.mat_t, *self.linearized_at)
+        mat_t = self.mat.transpose(_petsc().Mat())          # (petsc4py: no argument = in place)
+        ksp = self._ksp(mat_t, *self.linearized_at)
         ksp.setTolerances(rtol=rtol, atol=0.0, max_it=1000)
         lam = self.mat.createVecRight()
         ksp.solve(b, lam)
@@ -292,6 +291,7 @@ class DistributedFlow:
                  its, reason, relative)
         self.transposed_iterations = its
         ksp.destroy()
+        mat_t.destroy()
         check.destroy()
         if reason < 0 or relative > 10 * rtol:
             raise NumericalError("distributed flow adjoint: transposed Krylov solve failed",
@@ -301,8 +301,8 @@ class DistributedFlow:
     # ---- Newton ---------------------------------------------------------------------
     def solve(self, x=None, rho=None, params=None, w0=None, warm: bool = False) -> dict:
         """Steady flow (Newton, inexact Krylov steps, backtracking on ``|R|``); the state stays
-        distributed in ``self.w``, the converged Jacobian in ``self.mat`` and its Krylov solver
-        for :meth:`solve_transpose`. Starts from ``w0`` (a whole vector), or with ``warm`` from
+        distributed in ``self.w``, the converged Jacobian in ``self.mat`` (for
+        :meth:`solve_transpose`). Starts from ``w0`` (a whole vector), or with ``warm`` from
         the current ``self.w`` (its fixed values reset), else from the boundary values.
         Returns the report (same on every rank)."""
         flow, s = self.flow, self.flow.settings
@@ -324,40 +324,45 @@ class DistributedFlow:
         norm = self.assemble(self.w, x, rho, flow.density, params=params)
         ksp = self._ksp(self.mat, x, rho, params)
         dw = self.w.duplicate()
-        for it in range(s.newton_max_iter + 1):
-            history.append(norm)
-            log.info("distributed flow Newton %d: |R| = %.3e, target %.3e", it, norm, target)
-            if not np.isfinite(norm):
-                raise NumericalError("distributed flow solve: non-finite residual", {"history": history})
-            if norm <= target:
-                self.linearized_at = (x, rho, params)
-                return {"converged": True, "newton_iterations": it, "residual_history": history,
-                        "krylov_iterations": self.krylov_iterations, "wall_time_s": time.perf_counter() - t0}
-            if it == s.newton_max_iter:
-                break
-            ksp.setTolerances(rtol=max(forcing_term(history, target), self.rtol), max_it=500)
-            if it > 0:
-                ksp.setOperators(self.mat)
-            self.r.scale(-1.0)
-            ksp.solve(self.r, dw)
-            self.krylov_iterations += ksp.getIterationNumber()
-            log.info("FGMRES (fieldsplit): %d iterations, reason %d", ksp.getIterationNumber(), ksp.getConvergedReason())
-            if ksp.getConvergedReason() < 0:
-                raise NumericalError("distributed flow: Krylov solve failed",
-                                     {"reason": ksp.getConvergedReason(), "history": history})
-            dw.getArray()[self.fixed_owned - self.part.owned[0]] = 0.0     # the boundary values stay
-            base = self.w.copy()
+        try:
+            for it in range(s.newton_max_iter + 1):
+                history.append(norm)
+                log.info("distributed flow Newton %d: |R| = %.3e, target %.3e", it, norm, target)
+                if not np.isfinite(norm):
+                    raise NumericalError("distributed flow solve: non-finite residual", {"history": history})
+                if norm <= target:
+                    self.linearized_at = (x, rho, params)
+                    return {"converged": True, "newton_iterations": it, "residual_history": history,
+                            "krylov_iterations": self.krylov_iterations, "wall_time_s": time.perf_counter() - t0}
+                if it == s.newton_max_iter:
+                    break
+                ksp.setTolerances(rtol=max(forcing_term(history, target), self.rtol), max_it=500)
+                if it > 0:
+                    ksp.setOperators(self.mat)
+                self.r.scale(-1.0)
+                ksp.solve(self.r, dw)
+                self.krylov_iterations += ksp.getIterationNumber()
+                log.info("FGMRES (fieldsplit): %d iterations, reason %d", ksp.getIterationNumber(),
+                         ksp.getConvergedReason())
+                if ksp.getConvergedReason() < 0:
+                    raise NumericalError("distributed flow: Krylov solve failed",
+                                         {"reason": ksp.getConvergedReason(), "history": history})
+                dw.getArray()[self.fixed_owned - self.part.owned[0]] = 0.0     # the boundary values stay
+                base = self.w.copy()
 
-            def trial(alpha):
-                self.w.waxpy(alpha, dw, base)
-                merit = self.assemble(self.w, x, rho, flow.density, jacobian=(alpha == 1.0), params=params)
-                return merit, merit
-            found = backtracking(norm, trial)
-            if found is None:
-                raise NumericalError("distributed flow: line search found no decrease", {"history": history})
-            alpha, norm = found
-            if alpha != 1.0:
-                self.w.waxpy(alpha, dw, base)
-                norm = self.assemble(self.w, x, rho, flow.density, params=params)
-        raise NumericalError(f"distributed flow: no convergence in {s.newton_max_iter} Newton iterations",
-                             {"history": history})
+                def trial(alpha):
+                    self.w.waxpy(alpha, dw, base)
+                    merit = self.assemble(self.w, x, rho, flow.density, jacobian=(alpha == 1.0), params=params)
+                    return merit, merit
+                found = backtracking(norm, trial)
+                if found is None:
+                    raise NumericalError("distributed flow: line search found no decrease", {"history": history})
+                alpha, norm = found
+                if alpha != 1.0:
+                    self.w.waxpy(alpha, dw, base)
+                    norm = self.assemble(self.w, x, rho, flow.density, params=params)
+            raise NumericalError(f"distributed flow: no convergence in {s.newton_max_iter} Newton iterations",
+                                 {"history": history})
+        finally:                        # the hierarchies go now, not at the next garbage collection
+            ksp.destroy()
+            dw.destroy()
