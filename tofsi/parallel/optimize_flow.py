@@ -1,7 +1,7 @@
 """Flow-only topology optimization across MPI ranks: MMA on rank 0, the flow and its adjoint by slabs.
 
     mpiexec -n 2 python -m tofsi.parallel.optimize_flow SCENE [--set KEY=VALUE ...] \\
-        [--iterations N] [--out DIR] [--amg hypre|gamg]
+        [--iterations N] [--output DIR] [--amg hypre|gamg]
 
 Every rank builds the :class:`~tofsi.parallel.flow_problem.DistributedFlowProblem`
 (the replicated mesh, design map and volume weights; its own slab of the flow).
@@ -16,7 +16,7 @@ rank then filters and projects the design, solves the flow and its adjoint
 on its slab; objective and gradients are reduced with ``MPI_Allreduce``, so
 rank 0 holds them as every rank does. Rank 0 alone writes ``history.json``
 and ``history.csv`` (the serial optimizer's rows), ``design.npy`` and
-``result.json`` into ``--out``, and prints one line per evaluation.
+``result.json`` into ``--output``, and prints one line per evaluation.
 
 Not here (the serial :class:`~tofsi.optimize.Optimizer` has them): the
 optimality-criteria algorithm, fallbacks and bridging stages after a failed
@@ -185,7 +185,7 @@ def main(argv=None) -> int:
     parser.add_argument("scene")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override")
     parser.add_argument("--iterations", type=int, help="optimizer.max_iter: evaluations in all")
-    parser.add_argument("--out", type=Path, default=Path("results/distributed"))
+    parser.add_argument("--output", type=Path, default=Path("results/distributed"), help="output folder")
     parser.add_argument("--amg", default="hypre", choices=["hypre", "gamg"])
     args = parser.parse_args(argv)
     from petsc4py import PETSc
@@ -198,15 +198,15 @@ def main(argv=None) -> int:
     if mpi.rank != 0:
         serve(problem, mpi)
         return 0
-    args.out.mkdir(parents=True, exist_ok=True)
+    args.output.mkdir(parents=True, exist_ok=True)
 
     def line(it, point):
         print(f"{it.iteration:4d}  stage {it.stage}  f {it.objective:.10g}  volume {it.volume:.4f}  "
               f"g {it.constraint:+.2e}  change {it.change:.3f}  Newton {point.report['newton_iterations']}",
               flush=True)
-    figures = DistributedOptimizer(problem, args.out, mpi, line).run()
+    figures = DistributedOptimizer(problem, args.output, mpi, line).run()
     print(f"{figures['iterations']} evaluations on {mpi.size} ranks: objective {figures['objective']:.10g}, "
-          f"{figures['wall_time_s']:.1f} s; {args.out}", flush=True)
+          f"{figures['wall_time_s']:.1f} s; {args.output}", flush=True)
     return 0
 
 
