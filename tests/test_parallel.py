@@ -154,3 +154,19 @@ def test_mma_on_rank_zero_follows_the_serial_optimizer(tmp_path):
     assert final["ranks"] == 2 and abs(final["objective"] - result["objective"]) <= 1e-6 * abs(result["objective"])
     assert np.max(np.abs(np.load(out / "design.npy") - np.load(tmp_path / "serial" / "design.npy"))) <= 1e-6
     assert sorted(p.name for p in out.iterdir()) == ["design.npy", "history.csv", "history.json", "result.json"]
+
+
+@pytest.mark.parametrize("scene, sets, key", [
+    (SCENE, [], "effects"),                                             # a structure
+    (PIPE_BEND, ["design.objective=pressure-drop"], "design.objective"),
+    (PIPE_BEND, ["optimizer.algorithm=OC"], "optimizer.algorithm"),
+])
+def test_the_distributed_optimizer_refuses_what_it_cannot_do_before_needing_petsc(scene, sets, key):
+    """A scene the distributed optimizer cannot run is refused by name, with or without petsc4py."""
+    from tofsi.errors import InputError
+    from tofsi.parallel.flow_problem import DistributedFlowProblem
+    from tofsi.parallel.optimize_flow import check
+    loaded = tofsi.load_scene(scene, ["mesh.h_min=0.1", "mesh.h_max=0.1", *sets])
+    with pytest.raises(InputError, match=key):
+        check(loaded)
+        DistributedFlowProblem(loaded)

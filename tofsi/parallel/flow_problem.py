@@ -32,7 +32,7 @@ import numpy as np
 
 from tofsi.errors import InputError
 from tofsi.kept import Kept, input_key
-from tofsi.parallel.flow_adjoint import SlabObjective
+from tofsi.parallel.flow_adjoint import SLAB_OBJECTIVES, SlabObjective
 from tofsi.parallel.flow_system import DistributedFlow
 from tofsi.problem import Problem
 
@@ -62,6 +62,9 @@ class DistributedFlowProblem:
         if e.structure != "none" or e.mesh_motion != "none":
             raise InputError("effects", f"structure = {e.structure!r}, mesh_motion = {e.mesh_motion!r}",
                              "a flow-only scene (structure and mesh_motion 'none') for the distributed optimizer")
+        if scene.design.objective not in SLAB_OBJECTIVES:
+            raise InputError("design.objective", scene.design.objective,
+                             f"one of {list(SLAB_OBJECTIVES)} for the distributed flow")
         self.problem = Problem(scene)          # mesh, design map, volume weights: replicated, no solve here
         self.scene = scene
         self.engine = DistributedFlow(self.problem.model.flow, comm, amg)

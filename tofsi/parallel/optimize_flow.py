@@ -43,6 +43,13 @@ from tofsi.output import atomic_write, write_csv, write_json
 log = logging.getLogger(__name__)
 
 
+def check(scene) -> None:
+    """Refuse, before anything is built, an optimizer setting this driver does not have."""
+    if scene.optimizer.algorithm not in ALGORITHMS:
+        raise InputError("optimizer.algorithm", scene.optimizer.algorithm,
+                         f"one of {sorted(ALGORITHMS)} for the distributed optimizer (no OC)")
+
+
 def serve(problem, mpi) -> None:
     """The other ranks' loop: take part in every evaluation rank 0 asks for, until it says stop."""
     while True:
@@ -60,9 +67,7 @@ class DistributedOptimizer:
 
     def __init__(self, problem, output: Path, mpi, on_iteration=None):
         scene = problem.scene
-        if scene.optimizer.algorithm not in ALGORITHMS:
-            raise InputError("optimizer.algorithm", scene.optimizer.algorithm,
-                             f"one of {sorted(ALGORITHMS)} for the distributed optimizer")
+        check(scene)
         self.problem, self.output, self.mpi = problem, Path(output), mpi
         self.settings, self.design = scene.optimizer, scene.design
         self.on_iteration = on_iteration
@@ -194,7 +199,9 @@ def main(argv=None) -> int:
     from tofsi.parallel.flow_problem import DistributedFlowProblem
     overrides = args.set + ([f"optimizer.max_iter={args.iterations}"] if args.iterations else [])
     mpi = PETSc.COMM_WORLD.tompi4py()
-    problem = DistributedFlowProblem(tofsi.load_scene(args.scene, overrides), amg=args.amg)
+    scene = tofsi.load_scene(args.scene, overrides)
+    check(scene)
+    problem = DistributedFlowProblem(scene, amg=args.amg)
     if mpi.rank != 0:
         serve(problem, mpi)
         return 0
