@@ -88,16 +88,10 @@ class SlabObjective:
         self.view = SlabView(engine)
         self.model = SlabModel(self.view, engine.flow.mesh)
         self.mpi = engine.comm.tompi4py()
-        self.reports: list[dict] = []
 
     def state(self, rho: np.ndarray, params) -> SlabState:
         e = self.engine
         return SlabState(e.ghost_values(e.w).copy(), np.asarray(rho, dtype=float)[e.part.elements], params)
-
-    def value(self, rho: np.ndarray, params) -> float:
-        """``f`` at the engine's converged state (every rank: the sum over all slabs)."""
-        local = self.objective.value(self.model, self.state(rho, params))
-        return float(self.mpi.allreduce(local))
 
     def gradient(self, rho: np.ndarray, params) -> tuple[float, np.ndarray]:
         """``(f, df/drho (E,))`` at the engine's converged state, the same on every rank."""
@@ -120,7 +114,6 @@ class SlabObjective:
         total = np.empty_like(local)
         self.mpi.Allreduce(local, total, op=MPI.SUM)
         value = float(self.mpi.allreduce(self.objective.value(self.model, state)))
-        self.reports.append({"transposed_iterations": e.transposed_iterations})
         g.destroy()
         lam.destroy()
         return value, total

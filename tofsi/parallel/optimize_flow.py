@@ -37,7 +37,7 @@ import numpy as np
 
 from tofsi.coupled import continuation
 from tofsi.errors import InputError
-from tofsi.optimize import ALGORITHMS, INITIAL_STEP, MIN_STAGE, Iteration, stop_reason
+from tofsi.optimize import ALGORITHMS, INITIAL_STEP, MIN_STAGE, Iteration, non_discreteness, stop_reason
 from tofsi.output import atomic_write, write_csv, write_json
 
 log = logging.getLogger(__name__)
@@ -160,7 +160,7 @@ class DistributedOptimizer:
         params = self.problem.params
         it = Iteration(len(self.history), stage, float(point.f), float(point.f / scale), point.volume,
                        float(point.g[0]), change, params.beta, params.penalty, params.brinkman_q,
-                       time.perf_counter() - self._t0, self.problem.scene.effects.coupling)
+                       time.perf_counter() - self._t0, params.coupling or self.problem.scene.effects.coupling)
         self.history.append(it)
         self._write_history()
         if self.on_iteration:
@@ -172,10 +172,12 @@ class DistributedOptimizer:
         write_json(self.output / "history.json", rows)
 
     def _finish(self, gamma: np.ndarray) -> dict:
-        point = self._point(gamma)
+        point, p = self._point(gamma), self.problem.problem
         figures = {"scene": self.problem.scene.name, "iterations": len(self.history), "objective": point.f,
-                   "volume": point.volume, "constraint": float(point.g[0]), "stop_reason": self.stop_reason,
-                   "ranks": self.mpi.size, "elements": self.problem.problem.model.mesh.n_elements,
+                   "volume": point.volume, "constraint": float(point.g[0]),
+                   "non_discreteness_percent": non_discreteness(p.densities(gamma)[p.map.design]),
+                   "stop_reason": self.stop_reason,
+                   "ranks": self.mpi.size, "elements": p.model.mesh.n_elements,
                    "evaluations_computed": self.problem.evaluations,
                    "wall_time_s": time.perf_counter() - self._t0}
         self._write_history()
