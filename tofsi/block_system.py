@@ -300,13 +300,18 @@ class BlockSystem:
         blocks = [self.by_name[n] for n in comp]
         scales, history, kept = None, [], None
 
-        def merit(values: dict) -> tuple[float, list[float]]:
-            norms = [float(np.linalg.norm(b.residual(values, rho, params))) / sc
-                     for b, sc in zip(blocks, scales)]
-            return max(norms), norms
+        def merit(values: dict, linearize: bool = False) -> tuple[float, dict | None]:
+            """The largest scaled residual norm at ``values``; with ``linearize`` read from the
+            blocks' linearizations there (returned too), so that the Jacobians of an accepted
+            full step come from the same element passes as its residuals."""
+            lins_at = {b.name: b.linearize(values, rho, params) for b in blocks} if linearize else None
+            residuals = ([lins_at[b.name].residual for b in blocks] if linearize
+                         else [b.residual(values, rho, params) for b in blocks])
+            return max(float(np.linalg.norm(r)) / sc for r, sc in zip(residuals, scales)), lins_at
 
+        accepted = None                                 # the accepted full step's linearizations
         for it in range(s.max_iter + 1):
-            lins = {b.name: b.linearize(fields, rho, params) for b in blocks}
+            lins = accepted or {b.name: b.linearize(fields, rho, params) for b in blocks}
             R = [lins[b.name].residual for b in blocks]
             if scales is None:
                 scales = [b.residual_scale(fields, rho, params, lins[b.name]) for b in blocks]
@@ -338,7 +343,8 @@ class BlockSystem:
             if found is None:
                 raise NumericalError("monolithic coupling: line search found no decrease",
                                      {"history": history})
-            fields.update(found[1])
+            values, accepted = found[1]
+            fields.update(values)
         raise NumericalError(f"monolithic coupling did not converge in {s.max_iter} Newton iterations",
                              {"history": history})
 
@@ -356,8 +362,9 @@ class BlockSystem:
             step = solver.solve(J, b, rtol=rtol)
         dz = self.split(step, comp)
 
-        def trial(alpha):
+        def trial(alpha):                         # the full step linearized: the next iterate's
             values = dict(fields)
             values.update({n: fields[n] + alpha * dz[n] for n in comp})
-            return merit(values)[0], values
+            value, lins_at = merit(values, linearize=(alpha == 1.0))
+            return value, (values, lins_at)
         return backtracking(norm, trial), solver

@@ -245,11 +245,16 @@ class FluidForce:
         rho = np.zeros(self.flow.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
         if self.form != "reaction":
             return self.stress_operators(x) * self.weight(rho, params)[:, None, None]
-        Xe = self.flow.corners(x)
-        _, _, _, _, psi, c = self._reaction_parts(w, x, rho, params, Xe)
+        NN, _, _, _, psi, c = self._reaction_parts(w, x, rho, params, self.flow.corners(x))
         Ke = self.flow.element_jacobians(w, x, rho, params)[1]
-        rows = psi[:, None, None] * Ke[:, :self.k2, :] + c[:, None, None] * brinkman_operator(Xe, self.element)
-        return np.matmul(self.to_corners, self.free[..., None] * rows)
+        E, k2, m = Ke.shape[0], self.k2, Ke.shape[2]
+        rows = psi[:, None, None] * Ke[:, :k2, :]                                # (E, 2k, m)
+        mass = c[:, None, None] * NN                                           # c A_e: NN per component
+        rows[:, 0:k2:2, 0:k2:2] += mass
+        rows[:, 1:k2:2, 1:k2:2] += mass
+        rows *= self.free[..., None]
+        # T rows: the Q1 weights of the velocity nodes, component by component
+        return np.matmul(self.element.to_corners.T, rows.reshape(E, k2 // 2, 2 * m)).reshape(E, 8, m)
 
     # ---- global quantities ----------------------------------------------------------------------
     def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
