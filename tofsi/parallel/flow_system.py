@@ -109,6 +109,8 @@ class DistributedFlow:
         self.is_p = PETSc.IS().createGeneral(p.pressure.astype(PETSc.IntType), comm=self.comm)
         self.krylov_iterations = 0
         self.assembled = False
+        self.linearized_at = None         # (x, rho, params) of the converged self.mat
+        self.transposed_iterations = 0
 
     def _row_counts(self):
         """Non-zeros of each owned row in the diagonal and off-diagonal blocks ``((m,), (m,))``,
@@ -151,14 +153,31 @@ class DistributedFlow:
         whole.destroy()
         return out
 
-    def _element_values(self, w: "PETSc.Vec"):
+    def ghost_values(self, w: "PETSc.Vec") -> np.ndarray:
+        """``(m,)``: the entries of the distributed ``w`` at :attr:`ghosts` (every dof the slab's
+        elements touch), through one scatter; ``self.local`` indexes them by element."""
         PETSc = _petsc()
         self.scatter.scatter(w, self.ghost_vec, PETSc.InsertMode.INSERT_VALUES, PETSc.ScatterMode.FORWARD)
-        we = self.ghost_vec.getArray()[self.local]                                      # (E_r, 22)
+        return self.ghost_vec.getArray()
+
+    def slab_values(self, w: "PETSc.Vec"):
+        """The slab's element velocities ``(E_r, 9, 2)`` and pressures ``(E_r, 4)`` of ``w``."""
+        we = self.ghost_values(w)[self.local]                                           # (E_r, 22)
         return we[:, :18].reshape(-1, 9, 2), we[:, 18:]
 
+    def vector_of_ghosts(self, values: np.ndarray) -> "PETSc.Vec":
+        """A new distributed vector, the sum over ranks of their ghosted values ``(m,)`` (a dof on
+        a cut gets both slabs' contributions)."""
+        PETSc = _petsc()
+        v = self.mat.createVecLeft()
+        v.zeroEntries()
+        v.setValues(self.ghosts, np.asarray(values, dtype=float), addv=PETSc.InsertMode.ADD_VALUES)
+        v.assemble()
+        return v
+
     # ---- assembly -----------------------------------------------------------------
-    def _corners(self, x):
+    def corners(self, x=None) -> np.ndarray:
+        """The slab's corner coordinates ``(E_r, 4, 2)`` on the mesh moved by ``x`` (n, 2)."""
         mesh = self.flow.mesh
         quads = mesh.quads[self.part.elements]
         return (mesh.points[quads] if x is None else (mesh.points + x)[quads])       # (E_r, 4, 2)
@@ -170,9 +189,9 @@ class DistributedFlow:
         PETSc = _petsc()
         flow = self.flow
         ADD = PETSc.InsertMode.ADD_VALUES
-        ve, pe = self._element_values(w)
+        ve, pe = self.slab_values(w)
         alpha = flow.alpha(rho, params)[self.part.elements]
-        corners = self._corners(x)
+        corners = self.corners(x)
         self.r.zeroEntries()
         if jacobian:
             self.mat.zeroEntries()
@@ -198,7 +217,7 @@ class DistributedFlow:
         PETSc = _petsc()
         flow, p = self.flow, self.part
         mu = flow.settings.viscosity
-        area = element_areas(self._corners(x))                                          # (E_r,)
+        area = element_areas(self.corners(x))                                          # (E_r,)
         alpha = np.maximum(flow.alpha(rho, params)[p.elements], FLOOR * mu / area)
         lumped = np.concatenate([np.repeat(alpha * area / 9, 18).reshape(-1, 18),
                                  np.repeat(area / (4 * mu), 4).reshape(-1, 4)], axis=1)  # (E_r, 22)
@@ -214,16 +233,17 @@ class DistributedFlow:
         friction.getArray()[local_v] = 0.0
         return mass, friction
 
-    def _ksp(self, x, rho, params):
-        """FGMRES with the fieldsplit Schur preconditioner of the assembled ``self.mat``."""
+    def _ksp(self, mat, x, rho, params):
+        """FGMRES with the fieldsplit Schur preconditioner of the assembled ``mat`` (``self.mat``
+        or its transpose: ``B`` and ``B^T`` are read from ``mat``'s off-diagonal blocks)."""
         PETSc = _petsc()
         mass, weights = self._schur_parts(x, rho, params)
-        B = self.mat.createSubMatrix(self.is_p, self.is_v)
-        Bt = self.mat.createSubMatrix(self.is_v, self.is_p)
+        B = mat.createSubMatrix(self.is_p, self.is_v)
+        Bt = mat.createSubMatrix(self.is_v, self.is_p)
         Bt.diagonalScale(L=weights)
         L = B.matMult(Bt)                                                                # (n_p, n_p) distributed
         ksp = PETSc.KSP().create(comm=self.comm)
-        ksp.setOperators(self.mat)
+        ksp.setOperators(mat)
         ksp.setType("fgmres")
         ksp.setGMRESRestart(50)
         pc = ksp.getPC()
@@ -245,55 +265,104 @@ class DistributedFlow:
         ksp.setFromOptions()
         return ksp
 
+    def solve_transpose(self, b: "PETSc.Vec", rtol: float = 1e-11) -> "PETSc.Vec":
+        """``lam`` with ``J_c^T lam = b`` on the converged constrained Jacobian of the last
+        :meth:`solve` (``b``'s fixed entries zeroed, so ``lam``'s are zero: the serial
+        adjoint's homogenized multipliers), to ``|b - J_c^T lam| <= rtol |b|``: FGMRES with
+        the Schur fieldsplit of the explicitly transposed matrix ``J_c^T`` (one more matrix
+        while the adjoint runs; freed with its hierarchies on return). PETSc 3.18's transposed
+        fieldsplit application (``KSPSolveTranspose``) stagnates at 1e-4 after 1000
+        iterations on a Navier-Stokes Jacobian, hence the explicit transpose."""
+        if self.linearized_at is None:
+            raise NumericalError("distributed flow adjoint: no converged solve to transpose", {})
+        lo, _ = self.part.owned
+        b.getArray()[self.fixed_owned - lo] = 0.0
+        mat_t = self.mat.transpose(_petsc().Mat())          # (petsc4py: no argument = in place)
+        ksp = self._ksp(mat_t, *self.linearized_at)
+        ksp.setTolerances(rtol=rtol, atol=0.0, max_it=1000)
+        lam = self.mat.createVecRight()
+        ksp.solve(b, lam)
+        its, reason = ksp.getIterationNumber(), ksp.getConvergedReason()
+        check = b.duplicate()
+        self.mat.multTranspose(lam, check)
+        check.aypx(-1.0, b)
+        relative = check.norm() / max(b.norm(), 1e-300)
+        log.info("FGMRES transposed (fieldsplit): %d iterations, reason %d, |b - J^T lam|/|b| = %.2e",
+                 its, reason, relative)
+        self.transposed_iterations = its
+        ksp.destroy()
+        mat_t.destroy()
+        check.destroy()
+        if reason < 0 or relative > 10 * rtol:
+            raise NumericalError("distributed flow adjoint: transposed Krylov solve failed",
+                                 {"reason": reason, "iterations": its, "relative_residual": relative})
+        return lam
+
     # ---- Newton ---------------------------------------------------------------------
-    def solve(self, x=None, rho=None, params=None, w0=None) -> dict:
+    def solve(self, x=None, rho=None, params=None, w0=None, warm: bool = False) -> dict:
         """Steady flow (Newton, inexact Krylov steps, backtracking on ``|R|``); the state stays
-        distributed in ``self.w``. Returns the report (same on every rank)."""
+        distributed in ``self.w``, the converged Jacobian in ``self.mat`` (for
+        :meth:`solve_transpose`). Starts from ``w0`` (a whole vector), or with ``warm`` from
+        the current ``self.w`` (its fixed values reset), else from the boundary values.
+        Returns the report (same on every rank)."""
         flow, s = self.flow, self.flow.settings
         t0 = time.perf_counter()
+        start = self.w.copy() if warm else None
+        self.linearized_at = None
         self.initial()                  # the force scale: |F| of the all-fluid boundary-value state
         scale = max(self.assemble(self.w, x, None, flow.density, jacobian=False, params=params),
                     1e-14 * max(1.0, abs(s.inlet_velocity)))
         if w0 is not None:
             self.set_state(w0)
+        elif start is not None:
+            lo, _ = self.part.owned
+            start.getArray()[self.fixed_owned - lo] = self.values_new[self.fixed_owned]
+            start.copy(self.w)
+            start.destroy()
         target = s.newton_tol * scale
         history: list[float] = []
         norm = self.assemble(self.w, x, rho, flow.density, params=params)
-        ksp = self._ksp(x, rho, params)
+        ksp = self._ksp(self.mat, x, rho, params)
         dw = self.w.duplicate()
-        for it in range(s.newton_max_iter + 1):
-            history.append(norm)
-            log.info("distributed flow Newton %d: |R| = %.3e, target %.3e", it, norm, target)
-            if not np.isfinite(norm):
-                raise NumericalError("distributed flow solve: non-finite residual", {"history": history})
-            if norm <= target:
-                return {"converged": True, "newton_iterations": it, "residual_history": history,
-                        "krylov_iterations": self.krylov_iterations, "wall_time_s": time.perf_counter() - t0}
-            if it == s.newton_max_iter:
-                break
-            ksp.setTolerances(rtol=max(forcing_term(history, target), self.rtol), max_it=500)
-            if it > 0:
-                ksp.setOperators(self.mat)
-            self.r.scale(-1.0)
-            ksp.solve(self.r, dw)
-            self.krylov_iterations += ksp.getIterationNumber()
-            log.info("FGMRES (fieldsplit): %d iterations, reason %d", ksp.getIterationNumber(), ksp.getConvergedReason())
-            if ksp.getConvergedReason() < 0:
-                raise NumericalError("distributed flow: Krylov solve failed",
-                                     {"reason": ksp.getConvergedReason(), "history": history})
-            dw.getArray()[self.fixed_owned - self.part.owned[0]] = 0.0     # the boundary values stay
-            base = self.w.copy()
+        try:
+            for it in range(s.newton_max_iter + 1):
+                history.append(norm)
+                log.info("distributed flow Newton %d: |R| = %.3e, target %.3e", it, norm, target)
+                if not np.isfinite(norm):
+                    raise NumericalError("distributed flow solve: non-finite residual", {"history": history})
+                if norm <= target:
+                    self.linearized_at = (x, rho, params)
+                    return {"converged": True, "newton_iterations": it, "residual_history": history,
+                            "krylov_iterations": self.krylov_iterations, "wall_time_s": time.perf_counter() - t0}
+                if it == s.newton_max_iter:
+                    break
+                ksp.setTolerances(rtol=max(forcing_term(history, target), self.rtol), max_it=500)
+                if it > 0:
+                    ksp.setOperators(self.mat)
+                self.r.scale(-1.0)
+                ksp.solve(self.r, dw)
+                self.krylov_iterations += ksp.getIterationNumber()
+                log.info("FGMRES (fieldsplit): %d iterations, reason %d", ksp.getIterationNumber(),
+                         ksp.getConvergedReason())
+                if ksp.getConvergedReason() < 0:
+                    raise NumericalError("distributed flow: Krylov solve failed",
+                                         {"reason": ksp.getConvergedReason(), "history": history})
+                dw.getArray()[self.fixed_owned - self.part.owned[0]] = 0.0     # the boundary values stay
+                base = self.w.copy()
 
-            def trial(alpha):
-                self.w.waxpy(alpha, dw, base)
-                merit = self.assemble(self.w, x, rho, flow.density, jacobian=(alpha == 1.0), params=params)
-                return merit, merit
-            found = backtracking(norm, trial)
-            if found is None:
-                raise NumericalError("distributed flow: line search found no decrease", {"history": history})
-            alpha, norm = found
-            if alpha != 1.0:
-                self.w.waxpy(alpha, dw, base)
-                norm = self.assemble(self.w, x, rho, flow.density, params=params)
-        raise NumericalError(f"distributed flow: no convergence in {s.newton_max_iter} Newton iterations",
-                             {"history": history})
+                def trial(alpha):
+                    self.w.waxpy(alpha, dw, base)
+                    merit = self.assemble(self.w, x, rho, flow.density, jacobian=(alpha == 1.0), params=params)
+                    return merit, merit
+                found = backtracking(norm, trial)
+                if found is None:
+                    raise NumericalError("distributed flow: line search found no decrease", {"history": history})
+                alpha, norm = found
+                if alpha != 1.0:
+                    self.w.waxpy(alpha, dw, base)
+                    norm = self.assemble(self.w, x, rho, flow.density, params=params)
+            raise NumericalError(f"distributed flow: no convergence in {s.newton_max_iter} Newton iterations",
+                                 {"history": history})
+        finally:                        # the hierarchies go now, not at the next garbage collection
+            ksp.destroy()
+            dw.destroy()
