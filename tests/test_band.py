@@ -39,7 +39,7 @@ def test_band_by_layers_moves_only_its_quads_and_holds_its_edge():
 
 def test_band_by_distance_reaches_that_far_and_auto_scales_with_the_motion():
     setup = motion_setup(foil("mover.name=linear", "mover.band.mode=distance", "mover.band.distance=0.1"))
-    mesh, band = setup.mesh, setup.motion.band
+    mesh = setup.mesh
     solid_nodes = mesh.points[mesh.nodes_of(SOLID)]
     corners = mesh.points[mesh.quads[setup.moving]]                  # (Em, 4, 2)
     nearest = np.min(np.linalg.norm(corners[:, :, None, :] - solid_nodes[None, None], axis=-1), axis=2)

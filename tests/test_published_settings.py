@@ -5,7 +5,6 @@ its fixed-pressure outlets, and the pressure-only load against the no-slip body'
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 import tofsi
 from tofsi.coupled import CoupledModel

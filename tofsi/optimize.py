@@ -125,6 +125,20 @@ def non_discreteness(rho: np.ndarray) -> float:
     return float(400.0 * np.mean(rho * (1.0 - rho)))
 
 
+def settled(rows, settings) -> bool:
+    """A stage's rows (``Iteration`` records, its first first) have settled: after ``MIN_STAGE``
+    evaluations, the largest change below ``tol_change`` twice in a row, or the relative
+    objective change below ``tol_objective`` ``stall_iterations`` times in a row (topFlow's
+    rule with 5 and 1e-3)."""
+    s = settings
+    if len(rows) < max(MIN_STAGE, s.stall_iterations + 1):
+        return False
+    if all(it.change < s.tol_change for it in rows[-2:]):
+        return True
+    f = [it.objective for it in rows[-(s.stall_iterations + 1):]]
+    return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
+
+
 class Optimizer:
     """NLopt-driven design of a :class:`~tofsi.problem.Problem` with checkpoints in ``output``.
 
@@ -267,18 +281,8 @@ class Optimizer:
         return halfway
 
     def _converged(self) -> bool:
-        """Stop the running stage (or bridge) once the design settles: after ``MIN_STAGE``
-        evaluations, the largest change below ``tol_change`` twice in a row, or the relative
-        objective change below ``tol_objective`` ``stall_iterations`` times in a row (topFlow's
-        rule with 5 and 1e-3)."""
-        h = self.history[self.run_stage.first_row:]
-        s = self.settings
-        if len(h) < max(MIN_STAGE, s.stall_iterations + 1):
-            return False
-        if all(it.change < s.tol_change for it in h[-2:]):
-            return True
-        f = [it.objective for it in h[-(s.stall_iterations + 1):]]
-        return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
+        """The running stage (or bridge) has settled (:func:`settled` on its rows)."""
+        return settled(self.history[self.run_stage.first_row:], self.settings)
 
     def _run_stage(self, max_evaluations: int) -> np.ndarray:
         """NLopt over the stage, within ``max_evaluations`` evaluations (failed trials count);

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +38,9 @@ from tofsi.linalg.iterative import FLOOR
 from tofsi.parallel.partition import SlabPartition
 from tofsi.physics.flow_preconditioner import element_areas
 from tofsi.physics.fluid_kernel import fluid_element
+
+if TYPE_CHECKING:                              # annotations only: petsc4py is imported lazily
+    from petsc4py import PETSc
 
 log = logging.getLogger(__name__)
 CHUNK = 2048                # elements per kernel call (bounds the kernel's temporaries)

@@ -37,7 +37,7 @@ import numpy as np
 
 from tofsi.coupled import continuation
 from tofsi.errors import InputError
-from tofsi.optimize import ALGORITHMS, INITIAL_STEP, MIN_STAGE, Iteration, non_discreteness, stop_reason
+from tofsi.optimize import ALGORITHMS, INITIAL_STEP, Iteration, non_discreteness, settled, stop_reason
 from tofsi.output import atomic_write, write_csv, write_json
 
 log = logging.getLogger(__name__)
@@ -102,16 +102,6 @@ class DistributedOptimizer:
             gamma = self._nlopt(stage, p.problem.feasible(gamma), budget)
         return gamma
 
-    def _converged(self, first_row: int) -> bool:
-        """The serial optimizer's early stop (:meth:`tofsi.optimize.Optimizer._converged`'s rule)."""
-        h, s = self.history[first_row:], self.settings
-        if len(h) < max(MIN_STAGE, s.stall_iterations + 1):
-            return False
-        if all(it.change < s.tol_change for it in h[-2:]):
-            return True
-        f = [it.objective for it in h[-(s.stall_iterations + 1):]]
-        return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
-
     def _nlopt(self, stage: int, start: np.ndarray, max_evaluations: int) -> np.ndarray:
         first_row, scale, last = len(self.history), [None], [None]
 
@@ -130,7 +120,7 @@ class DistributedOptimizer:
             point = evaluate(x)
             if grad.size:
                 grad[:] = point.df / scale[0]
-            if self._converged(first_row):
+            if settled(self.history[first_row:], self.settings):
                 raise nlopt.ForcedStop
             return float(point.f / scale[0])
 
