@@ -82,13 +82,13 @@ def test_estimate_grows_like_n_log_n(command, scene):
 
 
 def test_the_guard_refuses_an_optimize_that_cannot_fit_where_the_solve_would(tmp_path, capsys):
-    """At 180 x 90 the optimize's estimate is 1.6x the solve's (measured 1.58): with a
-    limit between the two, the solve is let through and the optimize refused before building
-    anything (exit 2, one line, nothing written)."""
+    """At 180 x 90 the optimize's estimate is 1.09x the solve's (measured peaks 1.131 and
+    1.060 GB): with a limit between the two, the solve is let through and the optimize
+    refused before building anything (exit 2, one line, nothing written)."""
     sets = ["mesh.h_min=0.011111", "mesh.h_max=0.011111"]
     scene = tofsi.load_scene(SCENE, sets)
     solve, optimize = memory.estimate(scene, "solve"), memory.estimate(scene, "optimize")
-    assert optimize.peak_gb > 1.4 * solve.peak_gb
+    assert optimize.peak_gb > 1.05 * solve.peak_gb
     limit = 0.5 * (solve.peak_gb + optimize.peak_gb)
     assert memory.check(scene, "solve", limit) == solve
     t0 = time.perf_counter()

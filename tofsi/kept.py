@@ -43,6 +43,8 @@ def freeze(value):
 class Kept:
     """The last evaluation of one computation: ``get(key, build)`` returns the kept value when
     ``key`` (from :func:`input_key`) equals the last one, else ``build()``, frozen and kept.
+    The old value is let go before the new one is built, so the two are never held together
+    (a design point's state with its factorizations, an element Jacobian array).
     ``builds`` counts the evaluations made (tests see a fresh value being built)."""
 
     def __init__(self):
@@ -52,6 +54,7 @@ class Kept:
 
     def get(self, key: tuple, build: Callable[[], Any]):
         if self._key is None or self._key != key:
+            self._key, self._value = None, None
             value = freeze(build())
             self._key, self._value = key, value
             self.builds += 1

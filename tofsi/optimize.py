@@ -194,7 +194,8 @@ class Optimizer:
         ramp = state.reports.get("load_ramp", {})
         return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
                 "volume": p.volume_fraction.value(p.model, state), "quality": mesh_quality(p.model.mesh, state),
-                "ramp": (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))), "state": state}
+                "ramp": (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))),
+                "state": state.data()}             # the record: fields, no factorizations held
 
     def _record(self, gamma, entry, change) -> None:
         run = self.run_stage
