@@ -277,3 +277,41 @@ def test_amg_hierarchy_preconditions_nearby_matrices_until_it_goes_stale():
     x = rec.solve(K, b)
     assert rec.factorizations == 2
     assert np.linalg.norm(K @ x - b) <= 1.01e-10 * np.linalg.norm(b)
+
+
+def test_a_direct_solve_spends_no_refinement_past_round_off():
+    """A SIMP-like contrast (coefficients 1e-9 .. 1 on a 1D Laplacian) leaves |r| / |b| ~ 1e-5,
+    far above the 1e-12 refinement goal, at a componentwise backward error of 1e-16: refining
+    cannot gain a digit, so the solve is one triangular solve pair (it was three). Where the
+    backward error is large the refinement still runs (a perturbed factorization)."""
+    from tofsi.linalg.direct import ROUND_OFF
+    rng = np.random.default_rng(0)
+    n = 4000
+    k = 10 ** rng.uniform(-9, 0, n + 1)
+    A = sp.diags([-k[1:-1], k[:-1] + k[1:], -k[1:-1]], [-1, 0, 1], format="csr")
+    b = rng.standard_normal(n)
+    solver = DirectSolver(A, backend="superlu")
+    exact = solver.factorization
+
+    class Counting:
+        calls = 0
+
+        def solve(self, rhs, trans="N"):
+            Counting.calls += 1
+            return exact.solve(rhs, trans)
+    solver.factorization = Counting()
+    x = solver.solve(b)
+    r = b - A @ x
+    assert np.linalg.norm(r) > 1e3 * solver.refine_tol * np.linalg.norm(b)     # the goal is out of reach
+    assert solver.backward_error(b, x, r, "N") <= ROUND_OFF and Counting.calls == 1
+
+    class Perturbed:                                       # factors of a 1 % different matrix
+        inner = DirectSolver(A + 0.01 * sp.diags(A.diagonal()), backend="superlu").factorization
+
+        def solve(self, rhs, trans="N"):
+            Counting.calls += 1
+            return Perturbed.inner.solve(rhs, trans)
+    Counting.calls = 0
+    solver.factorization = Perturbed()
+    solver.solve(b)
+    assert Counting.calls == 3                             # refined twice: the backward error was large
