@@ -160,6 +160,7 @@ def test_mma_on_rank_zero_follows_the_serial_optimizer(tmp_path):
     (SCENE, [], "effects"),                                             # a structure
     (PIPE_BEND, ["design.objective=pressure-drop"], "design.objective"),
     (PIPE_BEND, ["optimizer.algorithm=OC"], "optimizer.algorithm"),
+    ("examples/scenes/double_pipe.toml", [], "open"),                   # every outflow prescribed
 ])
 def test_the_distributed_optimizer_refuses_what_it_cannot_do_before_needing_petsc(scene, sets, key):
     """A scene the distributed optimizer cannot run is refused by name, with or without petsc4py."""

@@ -84,10 +84,14 @@ class DistributedFlow:
         if flow.element.name != "q2q1":
             raise InputError("fluid.element", flow.element.name, "q2q1 for the distributed flow (its kernel "
                              "and its Schur complement approximation are Taylor-Hood's)")
+        if not flow.open_outlet:
+            raise InputError("fluid.<side>.open", "no open segment",
+                             "an open outlet for the distributed flow (with every opening's velocity "
+                             "prescribed one pressure is pinned, which it does not handle); list an "
+                             "open segment in a [fluid.<side>] table, or solve serially")
+        if flow.body_force is not None:
+            raise ValueError("the distributed flow has no body force term")
         PETSc = _petsc()
-        if flow.body_force is not None or not flow.open_outlet:
-            raise InputError("solver.linear_solver", "petsc-distributed",
-                             "distributed flow needs an open outlet and no body force")
         self.flow, self.amg, self.rtol = flow, amg, rtol
         self.comm = PETSc.COMM_WORLD if comm is None else comm
         self.part = SlabPartition.of(flow, self.comm.getRank(), self.comm.getSize())
