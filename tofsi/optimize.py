@@ -62,14 +62,12 @@ from tofsi.blocks import Continuation
 from tofsi.checkpoint import read_stage, write_checkpoint
 from tofsi.coupled import continuation
 from tofsi.errors import InputError, NumericalError
+from tofsi.nlopt_stage import INITIAL_STEP, run_stage, settled
 from tofsi.oc import oc_step
 from tofsi.output import atomic_write, write_csv, write_json
 from tofsi.stages import StageRun, StageStartFailed, bridge
 
 log = logging.getLogger(__name__)
-ALGORITHMS = {"MMA": nlopt.LD_MMA, "CCSAQ": nlopt.LD_CCSAQ}
-MIN_STAGE = 5            # evaluations before a stage may stop on small changes
-INITIAL_STEP = 0.05      # MMA's initial asymptote distance (a move limit for the first steps)
 
 
 @dataclass
@@ -103,14 +101,6 @@ class TrialFailed(Exception):
         self.error = error
 
 
-def stop_reason(result: int) -> str:
-    """Why NLopt ended a stage: ``max_iter`` (the evaluation budget) or NLopt's own reason."""
-    if result == nlopt.MAXEVAL_REACHED:
-        return "max_iter"
-    names = {v: k.lower() for k, v in vars(nlopt).items() if k.isupper() and k.endswith(("REACHED", "LIMITED"))}
-    return f"nlopt {names.get(result, result)}"
-
-
 def mesh_quality(mesh, state) -> tuple[float, float, float]:
     """``(min skewness, min area change, max area change)`` of the fluid mesh a state's flow
     was solved on; NaN where the mesh did not move (one-way)."""
@@ -123,20 +113,6 @@ def mesh_quality(mesh, state) -> tuple[float, float, float]:
 def non_discreteness(rho: np.ndarray) -> float:
     """Measure of non-discreteness ``4 sum rho (1 - rho) / n`` in percent (0: black and white)."""
     return float(400.0 * np.mean(rho * (1.0 - rho)))
-
-
-def settled(rows, settings) -> bool:
-    """A stage's rows (``Iteration`` records, its first first) have settled: after ``MIN_STAGE``
-    evaluations, the largest change below ``tol_change`` twice in a row, or the relative
-    objective change below ``tol_objective`` ``stall_iterations`` times in a row (topFlow's
-    rule with 5 and 1e-3)."""
-    s = settings
-    if len(rows) < max(MIN_STAGE, s.stall_iterations + 1):
-        return False
-    if all(it.change < s.tol_change for it in rows[-2:]):
-        return True
-    f = [it.objective for it in rows[-(s.stall_iterations + 1):]]
-    return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
 
 
 class Optimizer:
@@ -330,11 +306,7 @@ class Optimizer:
                                  state=error.state)
 
     def _nlopt(self, gamma: np.ndarray, step: float, max_evaluations: int) -> np.ndarray:
-        s, run = self.settings, self.run_stage
-        opt = nlopt.opt(ALGORITHMS[s.algorithm], gamma.size)
-        opt.set_lower_bounds(np.zeros(gamma.size))
-        opt.set_upper_bounds(np.ones(gamma.size))
-        opt.set_initial_step(np.full(gamma.size, step))
+        run = self.run_stage
 
         def objective(x, grad):
             e = self._evaluate(np.asarray(x))
@@ -350,17 +322,12 @@ class Optimizer:
             if grad.size:
                 grad[:] = e["dg"]
 
-        opt.set_min_objective(objective)
-        opt.add_inequality_mconstraint(constraint, [1e-8] * len(self.problem.constraint_names()))
-        opt.set_maxeval(max_evaluations)
-        try:
-            gamma = np.asarray(opt.optimize(np.clip(gamma, 0.0, 1.0)))
-            self.stop_reason = stop_reason(opt.last_optimize_result())
-            return gamma
-        except nlopt.ForcedStop:
+        found, self.stop_reason = run_stage(self.settings.algorithm, gamma, step, objective, constraint,
+                                            len(self.problem.constraint_names()), max_evaluations)
+        if found is None:
             log.info("stage %d converged after %d evaluations", run.stage, len(run.log))
-            self.stop_reason = "converged"
             return run.last[0].copy()
+        return found
 
     def _run_oc_stage(self, max_evaluations: int, last_stage: bool) -> np.ndarray:
         """A stage of optimality-criteria steps (:func:`tofsi.oc.oc_step`) in topFlow's order:

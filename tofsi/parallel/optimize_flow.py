@@ -37,7 +37,8 @@ import numpy as np
 
 from tofsi.coupled import continuation
 from tofsi.errors import InputError
-from tofsi.optimize import ALGORITHMS, INITIAL_STEP, Iteration, non_discreteness, settled, stop_reason
+from tofsi.nlopt_stage import ALGORITHMS, INITIAL_STEP, run_stage, settled
+from tofsi.optimize import Iteration, non_discreteness
 from tofsi.output import atomic_write, write_csv, write_json
 
 log = logging.getLogger(__name__)
@@ -130,21 +131,12 @@ class DistributedOptimizer:
             if grad.size:
                 grad[:] = point.dg
 
-        opt = nlopt.opt(ALGORITHMS[self.settings.algorithm], start.size)
-        opt.set_lower_bounds(np.zeros(start.size))
-        opt.set_upper_bounds(np.ones(start.size))
-        opt.set_initial_step(np.full(start.size, INITIAL_STEP))
-        opt.set_min_objective(objective)
-        opt.add_inequality_mconstraint(constraint, [1e-8])
-        opt.set_maxeval(max_evaluations)
-        try:
-            gamma = np.asarray(opt.optimize(np.clip(start, 0.0, 1.0)))
-            self.stop_reason = stop_reason(opt.last_optimize_result())
-            return gamma
-        except nlopt.ForcedStop:
+        found, self.stop_reason = run_stage(self.settings.algorithm, start, INITIAL_STEP, objective, constraint,
+                                            1, max_evaluations)
+        if found is None:
             log.info("stage %d converged after %d evaluations", stage, len(self.history) - first_row)
-            self.stop_reason = "converged"
             return last[0].copy()
+        return found
 
     def _record(self, stage: int, point, scale: float, change: float) -> None:
         params = self.problem.params
