@@ -11,8 +11,8 @@ import pytest
 import tofsi
 from adjoint import Adjoint
 from adjoint.checks import central_difference, relative_error
-from tofsi.design import DensityFilter, DesignMap, Projection
-from tofsi.errors import NumericalError
+from tofsi.optimization.design import DensityFilter, DesignMap, Projection
+from tofsi.core.errors import NumericalError
 
 from conftest import load
 from gradient_checks import check_total_derivative
@@ -173,7 +173,7 @@ def test_check_gradients_command_passes_and_fails_with_status_1(tmp_path, monkey
     out = json.loads(capsys.readouterr().out)
     assert out["passed"] and {r["check"] for r in out["checks"]} >= {"F_w", "S_u", "S_w", "S_rho",
                                                                       "objective compliance"}
-    from tofsi.physics.fields import StructureLinearization
+    from tofsi.fields.blocks import StructureLinearization
     original = StructureLinearization.transpose_partials
 
     def wrong_S_rho(self, lam):                       # S_rho 1 % too large

@@ -48,7 +48,7 @@ def test_the_old_keys_are_aliases_that_warn_and_conflicts_are_errors():
     with pytest.warns(FutureWarning, match="design.brinkman_q"):
         scene = load("beam_in_channel", "fluid.brinkman_q=0.05")
     assert scene.design.brinkman_q == (0.05,)
-    with pytest.warns(FutureWarning), pytest.raises(tofsi.errors.InputError) as err:
+    with pytest.warns(FutureWarning), pytest.raises(tofsi.core.errors.InputError) as err:
         load("beam_in_channel_optimization", "structure.simp_penalty=2.0")   # schedule starts at 3
     assert err.value.key == "structure.simp_penalty"
 

@@ -19,16 +19,16 @@ import pytest
 import scipy.sparse as sp
 
 import tofsi
-from tofsi import memory
-from tofsi.blocks import FieldBlock, Linearization
-from tofsi.config import option
+from tofsi.runs import memory
+from tofsi.core.blocks import FieldBlock, Linearization
+from tofsi.core.config import option
 from tofsi.fields import Field, Memory, Picture, on_q2_nodes
 from tofsi.linalg import DirectSolver
 from tofsi.objectives import Objective
-from tofsi.provenance import flatten, scene_tables
-from tofsi.registry import FIELDS, OBJECTIVES, SCENE_TABLES
-from tofsi.scene import scene_from_dict
-from tofsi.scene_tables import SceneTable
+from tofsi.runs.provenance import flatten, scene_tables
+from tofsi.core.registry import FIELDS, OBJECTIVES, SCENE_TABLES
+from tofsi.scene.scene import scene_from_dict
+from tofsi.scene.tables import SceneTable
 
 from conftest import scene_path
 
@@ -90,7 +90,7 @@ def test_an_objective_defined_in_a_test_file_optimizes_through_the_command_line(
     p = state.w[problem.model.flow.n_velocity:]
     assert history[0]["objective"] == pytest.approx(0.5 * p @ p, rel=1e-9)
     assert history[-1]["objective"] < history[0]["objective"]       # the optimizer lowered it
-    assert "pressure-energy" in tofsi.scene.reference_table()
+    assert "pressure-energy" in tofsi.scene.scene.reference_table()
 
 
 # ---- scene tables ----------------------------------------------------------------------------
@@ -254,4 +254,4 @@ def test_a_field_defined_in_a_test_file_reaches_provenance_solve_json_the_vtu_an
     assert estimate.unknowns["tracer"] == model.mesh.n_nodes
     assert "tracer" not in memory.estimate(tofsi.load_scene(scene_path("beam_in_channel_optimization")),
                                            "solve").unknowns
-    assert "tracer.gain" in tofsi.scene.reference_table()
+    assert "tracer.gain" in tofsi.scene.scene.reference_table()

@@ -5,8 +5,8 @@ import math
 import pytest
 
 import tofsi
-from tofsi.errors import InputError
-from tofsi.scene import parse_override
+from tofsi.core.errors import InputError
+from tofsi.scene.scene import parse_override
 
 from conftest import ALL_SCENES, load, scene_path
 
@@ -125,6 +125,6 @@ def test_override_without_equals_sign_is_rejected():
 
 def test_the_scene_reference_in_the_docs_is_current():
     from pathlib import Path
-    from tofsi.scene import reference_table
+    from tofsi.scene.scene import reference_table
     docs = (Path(__file__).resolve().parents[1] / "docs" / "scenes.md").read_text()
-    assert reference_table() in docs, "regenerate docs/scenes.md from tofsi.scene.reference_table()"
+    assert reference_table() in docs, "regenerate docs/scenes.md from tofsi.scene.scene.reference_table()"

@@ -19,15 +19,15 @@ them (exit 0, the warning kept). Where the mesh moves with the structure
 from __future__ import annotations
 
 
-from tofsi import quality
+from tofsi.mesh import quality
 from tofsi.commands.context import stage_index
-from tofsi.coupled import CoupledModel, continuation
-from tofsi.errors import InputError
+from tofsi.coupling.coupled import CoupledModel, continuation
+from tofsi.core.errors import InputError
 from tofsi.fields import Picture, state_points
-from tofsi.output import write_json, write_vtu
-from tofsi.plotting import plot_mesh, plot_nodal, region_outlines
-from tofsi.problem import Problem
-from tofsi.provenance import solve_settings
+from tofsi.runs.output import write_json, write_vtu
+from tofsi.runs.plotting import plot_mesh, plot_nodal, region_outlines
+from tofsi.optimization.problem import Problem
+from tofsi.runs.provenance import solve_settings
 
 
 UNPHYSICAL = 5      # exit status: the figures are written, but they are no physical state

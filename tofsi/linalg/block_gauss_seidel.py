@@ -34,7 +34,7 @@ import logging
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.linalg.direct import DirectSolver
 from tofsi.linalg.recycling import GMRES_RESTART, flexible_gmres
 

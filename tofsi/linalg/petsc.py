@@ -26,7 +26,7 @@ import weakref
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 
 log = logging.getLogger(__name__)
 

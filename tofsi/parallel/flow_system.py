@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tofsi.errors import InputError, NumericalError
-from tofsi.iteration import backtracking, forcing_term
+from tofsi.core.errors import InputError, NumericalError
+from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.linalg.iterative import FLOOR
 from tofsi.parallel.partition import SlabPartition
 from tofsi.physics.flow_preconditioner import element_areas

@@ -45,8 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofsi.errors import InputError
-from tofsi.mesh import SIDES
+from tofsi.core.errors import InputError
+from tofsi.mesh.structured import SIDES
 from tofsi.physics.fluid_elements import TaylorHood
 
 INWARD = {"left": (1.0, 0.0), "right": (-1.0, 0.0), "bottom": (0.0, 1.0), "top": (0.0, -1.0)}
@@ -76,7 +76,7 @@ def side_coordinate(side: str, points: np.ndarray) -> np.ndarray:
 
 
 def openings_from_settings(settings) -> list[Opening]:
-    """The openings a :class:`~tofsi.settings.FluidSettings` describes (see the module doc)."""
+    """The openings a :class:`~tofsi.scene.settings.FluidSettings` describes (see the module doc)."""
     out = [Opening("left", "inflow", y0, y1, U, f"fluid.inlets[{i}]") for i, (y0, y1, U) in enumerate(settings.inlets)]
     out += [Opening("right", "outflow", y0, y1, U, f"fluid.outlets[{i}]")
             for i, (y0, y1, U) in enumerate(settings.outlets)]
