@@ -8,7 +8,7 @@ from tofsi.core.errors import NumericalError
 from tofsi.mesh.grading import graded_axis
 from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.physics.flow import Flow
-from tofsi.scene.settings import FluidSettings
+from tofsi.fields.flow import FluidSettings
 
 
 def graded_channel():

@@ -9,7 +9,7 @@ from tofsi.core.errors import InputError
 from tofsi.mesh.structured import SIDES, StructuredQuadMesh
 from tofsi.physics.flow import Flow
 from tofsi.physics.flow_boundary import INWARD, segment_weights, side_coordinate
-from tofsi.scene.settings import FluidSettings
+from tofsi.fields.flow import FluidSettings
 
 OPPOSITE = {"left": "right", "right": "left", "bottom": "top", "top": "bottom"}
 

@@ -18,7 +18,7 @@ from tofsi.linalg.iterative import TRANSPOSE_TOL, BlockSaddlePreconditioner
 from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.physics.flow import Flow
 from tofsi.physics.flow_preconditioner import flow_preconditioner, schur_parts
-from tofsi.scene.settings import FluidSettings
+from tofsi.fields.flow import FluidSettings
 
 SCENE = "examples/scenes/beam_in_channel_optimization.toml"
 

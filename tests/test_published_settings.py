@@ -12,7 +12,7 @@ from tofsi.optimization.design import DesignMap
 from tofsi.core.errors import InputError
 from tofsi.mesh.structured import DESIGN, SOLID, StructuredQuadMesh
 from tofsi.physics.flow import Flow
-from tofsi.scene.settings import FluidSettings, SideFlow
+from tofsi.fields.flow import FluidSettings, SideFlow
 
 from conftest import load
 from no_slip import NoSlipReference

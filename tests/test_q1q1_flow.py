@@ -15,7 +15,7 @@ from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
 from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.physics.flow import Flow
-from tofsi.scene.settings import FluidSettings
+from tofsi.fields.flow import FluidSettings
 
 PI = np.pi
 

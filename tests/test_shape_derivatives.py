@@ -29,7 +29,8 @@ from tofsi.physics.fluid_load import load_operator
 from tofsi.physics.fluid_shape import dissipation_shape, fluid_shape, mass_shape, stress_load_shape
 from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
-from tofsi.scene.settings import FluidSettings, StructureSettings
+from tofsi.fields.flow import FluidSettings
+from tofsi.fields.structure import StructureSettings
 
 TOL = 1e-10
 PARAMS = Continuation(brinkman_q=0.3, load_exponent=3.0)

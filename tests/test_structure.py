@@ -10,7 +10,8 @@ from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
-from tofsi.scene.settings import FluidSettings, StructureSettings
+from tofsi.fields.flow import FluidSettings
+from tofsi.fields.structure import StructureSettings
 
 
 def distorted(n=5, amp=0.12, seed=0):

@@ -101,7 +101,7 @@ OBJECTIVES: Registry = Registry("objective", "design.objective", home="tofsi.obj
 """Quantities a design can minimize (:class:`tofsi.objectives.Objective` entries)."""
 
 FIELDS: Registry = Registry("field", "effects", home="tofsi.fields")
-"""Fields of the coupled problem (:class:`tofsi.fields.Field` entries), in dependency order."""
+"""Fields of the coupled problem (:class:`tofsi.fields.base.Field` entries), in dependency order."""
 
 SCENE_TABLES: Registry = Registry("scene table", "scene", home="tofsi.scene.tables")
 """The tables of a scene file (:class:`tofsi.scene.tables.SceneTable` entries), in file order."""

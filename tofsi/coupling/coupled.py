@@ -29,7 +29,7 @@ from tofsi.core.blocks import Continuation, State
 from tofsi.mesh.channel import build_mesh
 from tofsi.mesh import quality
 from tofsi.core.errors import InputError, NumericalError
-from tofsi.fields import fluid_force
+from tofsi.fields.flow import fluid_force
 from tofsi.linalg import LinearAlgebra
 from tofsi.coupling.load_ramp import ramped
 from tofsi.mesh.structured import DESIGN, SOLID
@@ -65,7 +65,7 @@ def two_way_stages(scene) -> list[int]:
 class CoupledModel:
     """Fields, blocks and the coupled solve of a scene (with its design densities).
 
-    fields : the active :class:`~tofsi.fields.Field` entries, in dependency order;
+    fields : the active :class:`~tofsi.fields.base.Field` entries, in dependency order;
     physics : their physics objects by field name (``model.flow``, ``model.structure``
     and ``model.motion`` name the built-in ones, None when absent).
     """

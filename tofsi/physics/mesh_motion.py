@@ -1,7 +1,7 @@
 """Mesh motion: a scene's mover between the structure and the fluid mesh.
 
 The one entry point for moving a scene's fluid mesh, used by the coupled
-model (the field ``x`` of :mod:`tofsi.fields.blocks`) and by the mesh-motion
+model (the field ``x``, :mod:`tofsi.fields.motion`) and by the mesh-motion
 studies (:mod:`tofsi.coupling.motion`). Two forms, chosen by the scene:
 
 * explicit interface (scenes without a design region): the non-solid quads

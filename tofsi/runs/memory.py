@@ -88,11 +88,11 @@ def mpi_ranks() -> int:
 
 def estimate(scene, command: str = "solve", backend: str = "superlu", ranks: int = 1) -> Estimate:
     """The peak memory of ``tofsi COMMAND`` on ``scene`` from its mesh sizes alone: every field
-    the command solves (:meth:`tofsi.fields.Field.active`) adds its per-element bytes and its
+    the command solves (:meth:`tofsi.fields.base.Field.active`) adds its per-element bytes and its
     unknowns' LU (``backend`` a direct one) or iterative solvers (``backend = "iterative"``);
     ``ranks``: processes under ``mpiexec`` (the petsc backend splits the factors)."""
     from tofsi.mesh.channel import mesh_axes
-    from tofsi.fields import GridSize
+    from tofsi.fields.base import GridSize
     xs, ys = mesh_axes(scene.geometry, scene.mesh)
     grid = GridSize(len(xs) - 1, len(ys) - 1)
     if command == "mesh":

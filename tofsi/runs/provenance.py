@@ -26,21 +26,22 @@ import subprocess
 from functools import lru_cache
 from pathlib import Path
 
-from tofsi.core.registry import SCENE_TABLES
+from tofsi.scene.scene import table_entries
 from tofsi.scene.tables import plain
+
 
 def scene_tables(scene) -> dict:
     """The effective scene as raw tables, every registered table written out:
     ``scene_from_dict(scene_tables(s)) == s``."""
     tables = {"name": scene.name, "description": scene.description}
-    for table in SCENE_TABLES:
+    for table in table_entries():
         tables[table.name] = table.write(getattr(scene, table.name))
     return tables
 
 
 def resumable_keys() -> tuple[str, ...]:
     """Dotted keys a ``--resume`` may change (they cannot change the replayed history)."""
-    return ("description", *(f"{t.name}.{k}" for t in SCENE_TABLES for k in t.resumable))
+    return ("description", *(f"{t.name}.{k}" for t in table_entries() for k in t.resumable))
 
 
 def flatten(tables: dict, prefix: str = "") -> dict:
@@ -158,5 +159,5 @@ def solve_settings(model) -> dict:
     """The settings that define a model's forward solve: the effects, the mesh, the coupling
     and every active field's own tables."""
     tables = scene_tables(model.scene)
-    keys = ["effects", "mesh", "coupled", *(t for field in model.fields for t in field.tables)]
+    keys = ["effects", "mesh", "coupled", *(t.name for field in model.fields for t in field.tables)]
     return {k: tables[k] for k in dict.fromkeys(keys)}

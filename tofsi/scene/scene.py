@@ -4,9 +4,11 @@ A scene is a TOML file (see ``examples/scenes/``) loaded into a frozen,
 validated :class:`Scene`. ``--set KEY=VALUE`` overrides are applied to the
 raw tables before validation, so they are checked exactly like the file.
 The tables a scene may hold are the entries of
-:data:`tofsi.core.registry.SCENE_TABLES` (:mod:`tofsi.scene.tables`); loading,
+:data:`tofsi.core.registry.SCENE_TABLES` (:mod:`tofsi.scene.tables`) and the
+tables of the registered fields (:data:`tofsi.core.registry.FIELDS`), as the
+``[mover.<name>]`` tables are those of the registered movers; loading,
 provenance, ``--resume`` and the scene reference (:func:`reference_table`)
-all read that one list.
+all read that one list, :func:`table_entries`.
 """
 
 from __future__ import annotations
@@ -21,17 +23,31 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from tofsi.core.errors import InputError
-from tofsi.core.registry import OBJECTIVES, SCENE_TABLES
+from tofsi.core.registry import FIELDS, OBJECTIVES, SCENE_TABLES
 
 MIN_ELEMENTS_ACROSS = 4     # mesh.h_max is at most the channel's smaller side over this
 MOVER_ALIASES = (("mover", "name"), ("effects", "mesh_motion"))      # one setting, two spellings
 _INDEXED = re.compile(r"^(?P<key>[^\[\]]+)(?P<indices>(\[\d+\])+)$")     # layers[0], solids[1][2]
 
 
+def table_entries() -> list:
+    """Every table a scene holds (:class:`~tofsi.scene.tables.SceneTable` entries), in file
+    order: the scene's own, with each registered field's tables after ``[effects]`` (which
+    switches the fields on), in the fields' order."""
+    own = list(SCENE_TABLES)
+    names = [table.name for table in own]
+    at = names.index("effects") + 1 if "effects" in names else len(own)
+    entries: dict = {}
+    for table in [*own[:at], *(table for field in FIELDS for table in field.tables), *own[at:]]:
+        if entries.setdefault(table.name, table) is not table:
+            raise ValueError(f"two scene tables are named {table.name!r}")
+    return list(entries.values())
+
+
 @dataclass(frozen=True)
 class Scene:
-    """A validated, frozen scene: its name, description and one record per table of
-    :data:`~tofsi.core.registry.SCENE_TABLES`, read as attributes (``scene.fluid``,
+    """A validated, frozen scene: its name, description and one record per table
+    (:func:`table_entries`), read as attributes (``scene.fluid``,
     ``scene.design``, ``scene.mover``, ...; a registered table ``"toy"`` is ``scene.toy``)."""
 
     name: str
@@ -112,7 +128,8 @@ def scene_from_dict(raw: dict, source: str = "") -> Scene:
     if not isinstance(raw, dict):
         raise InputError("scene", raw, "expected a table")
     raw = _resolve_aliases(raw)
-    top = ("name", "description", *SCENE_TABLES.names())
+    entries = table_entries()
+    top = ("name", "description", *(table.name for table in entries))
     for key in raw:
         if key not in top:
             raise InputError(key, raw[key], "unknown key; allowed keys: " + ", ".join(sorted(top)))
@@ -124,26 +141,25 @@ def scene_from_dict(raw: dict, source: str = "") -> Scene:
     description = raw.get("description", "")
     if not isinstance(description, str):
         raise InputError("description", description, "expected a string")
-    tables = {table.name: table.build(raw) for table in SCENE_TABLES}
+    tables = {table.name: table.build(raw) for table in entries}
     scene = Scene(name=name, description=description, tables=MappingProxyType(tables), source=source)
     _check_across_tables(scene)
     return scene
 
 
 def _check_across_tables(scene: Scene) -> None:
-    """Keys checked against each other: element sizes and openings against the channel, the
-    two-way stages against the effects, the objective against the effect it needs."""
-    geometry, mesh, fluid = scene.geometry, scene.mesh, scene.fluid
+    """Keys checked against each other: element sizes against the channel, each table's own
+    checks (:attr:`~tofsi.scene.tables.SceneTable.check`: the flow's openings against the
+    channel), the two-way stages against the effects, the objective against the effect it needs."""
+    geometry, mesh = scene.geometry, scene.mesh
     smaller = min(geometry.length, geometry.height)
     if mesh.h_max > smaller / MIN_ELEMENTS_ACROSS:
         raise InputError("mesh.h_max", mesh.h_max, f"allowed: h_max <= {smaller / MIN_ELEMENTS_ACROSS:g} "
                          f"(at least {MIN_ELEMENTS_ACROSS} elements across the channel's smaller "
                          f"side, {smaller:g} m)")
-    for name, side in (("inlets", "left"), ("outlets", "right")):
-        for i, (y0, y1, _) in enumerate(getattr(fluid, name)):
-            if y0 < 0 or y1 > geometry.height:
-                raise InputError(f"fluid.{name}[{i}]", [y0, y1], f"extends outside the channel's "
-                                 f"{side} side; need 0 <= y0 < y1 <= geometry.height = {geometry.height:g}")
+    for table in table_entries():
+        if table.check is not None:
+            table.check(scene)
     effects = scene.effects
     two_way = effects.coupling == "two-way" and effects.mesh_motion != "none"
     if "two-way" in scene.design.coupling and not two_way:
@@ -267,7 +283,7 @@ def reference_table() -> str:
     rows = [("name", "(required)", "a string without slashes or control characters, not . or ..",
              "the scene's name (output folder)"),
             ("description", "", "a string", "one line about the scene")]
-    for table in SCENE_TABLES:
+    for table in table_entries():
         rows += table.rows()
 
     def show(value):

@@ -1,7 +1,9 @@
-"""Physical and numerical settings of a scene: fluid, structure, design, optimizer.
+"""Settings of a scene's design, optimizer, coupled solve, linear algebra and stiffening tuning.
 
-Each class is one TOML table of a scene file (``[fluid]``, ``[structure]``,
-``[design]``, ``[optimizer]``); every field states its unit and range.
+Each class is one TOML table of a scene file (``[design]``, ``[optimizer]``,
+``[coupled]``, ``[solver]``, ``[tune]``); every field states its unit and range.
+The fields' own tables (``[fluid]``, ``[structure]``, ``[mover]``) live with
+their fields (:mod:`tofsi.fields`).
 """
 
 from __future__ import annotations
@@ -10,7 +12,6 @@ from dataclasses import dataclass
 
 from tofsi.core.config import option
 from tofsi.core.errors import InputError
-from tofsi.mesh.structured import SIDES
 from tofsi.core.registry import OBJECTIVES
 
 MAX_STIFFENING = 1e6
@@ -19,135 +20,6 @@ measured on the foil rotated 30 degrees (one stiffened layer), the Yeoh mover's 
 skewness is 0.585 at a factor 1e3 and 0.562 at 1e6, and its Newton fails from 1e8 on (the
 tangent's conditioning grows with the factor); the linear and spring movers change by less
 than 0.02 between 1e3 and 1e30."""
-
-
-@dataclass(frozen=True)
-class SideFlow:
-    """Openings in one side of the channel (table ``[fluid.<side>]``); the rest of the side is a
-    no-slip wall. Positions run along the side: y on the left and right sides, x on the bottom
-    and top. Listing any opening in any side replaces the default channel (inflow over the
-    whole left side, open right side): every side is then a wall except what is listed."""
-
-    inflow: tuple[tuple[float, ...], ...] = option((), length=3,
-                                                   doc="prescribed inflow segments [from, to, peak]: "
-                                                       "parabolic velocity into the channel [m, m, m/s]")
-    outflow: tuple[tuple[float, ...], ...] = option((), length=3,
-                                                    doc="prescribed outflow segments [from, to, peak]: "
-                                                        "parabolic velocity out of the channel [m, m, m/s]")
-    open: tuple[tuple[float, ...], ...] = option((), length=2,
-                                                 doc="open outlet segments [from, to] [m] with the natural "
-                                                     "condition of fluid.outlet")
-    uniform: tuple[tuple[float, ...], ...] = option((), length=4,
-                                                    doc="segments [from, to, vx, vy] where the velocity is "
-                                                        "the constant (vx, vy), end points included [m, m, "
-                                                        "m/s, m/s]: a free stream or a moving wall (topFlow's "
-                                                        "rugby ball)")
-
-    def __post_init__(self):
-        for name in ("inflow", "outflow", "open", "uniform"):
-            for i, segment in enumerate(getattr(self, name)):
-                if not segment[0] < segment[1]:
-                    raise InputError(f"{name}[{i}]", list(segment[:2]), "need from < to")
-
-    @property
-    def is_empty(self) -> bool:
-        return not (self.inflow or self.outflow or self.open or self.uniform)
-
-
-@dataclass(frozen=True)
-class FluidSettings:
-    """Steady incompressible flow with Brinkman friction (table ``[fluid]``)."""
-
-    density: float = option(1.0, ge=0, doc="fluid density [kg/m^3]; 0 gives Stokes flow")
-    viscosity: float = option(1.0, gt=0, doc="dynamic viscosity [Pa s]")
-    inlet_velocity: float = option(1.0, doc="peak of the parabolic inflow over the whole left side "
-                                                 "(the default channel) [m/s]")
-    inlets: tuple[tuple[float, ...], ...] = option((), length=3,
-                                                   doc="inflow segments [y0, y1, peak velocity] on "
-                                                       "the left side; empty: the whole side (unless "
-                                                       "a fluid.<side> table lists openings)")
-    outlets: tuple[tuple[float, ...], ...] = option((), length=3,
-                                                    doc="prescribed outflow segments [y0, y1, peak] on "
-                                                        "the right side; empty: the side open (unless "
-                                                        "a fluid.<side> table lists openings)")
-    element: str = option("q2q1", choices=("q2q1", "q1q1"),
-                          doc="finite element: q2q1, Taylor-Hood (inf-sup stable, exact for Poiseuille "
-                              "flow); q1q1, equal-order bilinear velocity and pressure with topFlow's "
-                              "SUPG/PSPG stabilization (the element of topFlow and TOFLUX: a third of "
-                              "the unknowns on the same mesh, one order less accurate)")
-    outlet: str = option("zero-pressure", choices=("zero-pressure", "traction-free", "fixed-pressure"),
-                         doc="outlet condition: zero-pressure, mu dv/dn - p n = 0 (zero pressure for "
-                             "developed flow); traction-free, (-p I + 2 mu eps(v)) n = 0; "
-                             "fixed-pressure, p = 0 at the open segments' nodes, their end nodes "
-                             "included (normal velocity free there), with the strain-rate viscous "
-                             "form: topFlow's and TOFLUX's outlets")
-    parallel_outflow: bool = option(False, doc="open outlets: tangential velocity 0, the flow leaves "
-                                               "along the normal (as topFlow's outlets)")
-    left: SideFlow = option(SideFlow(), doc="openings in the left side")
-    right: SideFlow = option(SideFlow(), doc="openings in the right side")
-    bottom: SideFlow = option(SideFlow(), doc="openings in the bottom side")
-    top: SideFlow = option(SideFlow(), doc="openings in the top side")
-    alpha_max: float = option(1e5, gt=0, doc="Brinkman friction of solid [kg/(m^3 s)]")
-    alpha_min: float = option(0.0, ge=0, doc="Brinkman friction of fluid [kg/(m^3 s)]")
-    newton_tol: float = option(1e-10, gt=0, lt=1, doc="Newton tolerance on the residual, "
-                               "relative to the residual of the zero state")
-    newton_max_iter: int = option(25, ge=1, le=1000, doc="Newton iterations per solve")
-    continuation_steps: int = option(4, ge=1, le=100,
-                                     doc="Reynolds continuation steps tried when a direct "
-                                         "Navier-Stokes solve fails")
-
-    def __post_init__(self):
-        if self.alpha_min > self.alpha_max:
-            raise InputError("alpha_min", self.alpha_min,
-                             f"allowed: 0 <= alpha_min <= alpha_max = {self.alpha_max}")
-        for name in ("inlets", "outlets"):
-            for i, (y0, y1, _) in enumerate(getattr(self, name)):
-                if not y0 < y1:
-                    raise InputError(f"{name}[{i}]", [y0, y1], "need y0 < y1")
-
-
-@dataclass(frozen=True)
-class StructureSettings:
-    """Plane-strain elasticity with SIMP interpolation, small or finite strain (table ``[structure]``)."""
-
-    youngs_modulus: float = option(1e5, gt=0, doc="Young's modulus of solid E0 [Pa]")
-    poisson_ratio: float = option(0.3, gt=-1.0, lt=0.5, doc="Poisson's ratio")
-    e_min_ratio: float = option(1e-9, gt=0, lt=1, doc="Emin / E0 of void (fluid) elements")
-    clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
-                                      doc="channel sides where the structure is clamped (at least one)")
-    load: str = option("reaction", choices=("reaction", "stress-divergence", "pressure"),
-                       doc="the fluid's force on the solid: reaction, the momentum-consistent "
-                           "reaction of the fluid residual (its resultant tends to the no-slip "
-                           "body's drag and lift); stress-divergence, Lundgaard et al. 2018's "
-                           "volume form of the total stress inside the solid (loses the viscous "
-                           "shear of an unresolved Brinkman layer; for reproducing published results); "
-                           "pressure, the same form with the pressure alone (TOFLUX's load)")
-    load_exponent: float = option(1.0, ge=1, le=10,
-                                  doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
-                                      "et al.; the SIMP exponent keeps gray elements' displacement "
-                                      "bounded)")
-    model: str = option("linear", choices=("linear", "neo-hookean"),
-                        doc="linear: small-strain elasticity; neo-hookean: compressible neo-Hookean at "
-                            "finite strain (plane strain, total Lagrangian), solved by Newton with load "
-                            "steps; the fluid load acts on the moved configuration")
-    interpolation: str = option("energy", choices=("energy", "simp"),
-                                doc="neo-hookean: nearly void elements -- energy: Wang et al. 2014's "
-                                    "blend of the nonlinear and the linear strain energy by density "
-                                    "(void elements linear, so they cannot invert or stall Newton); "
-                                    "simp: every element neo-Hookean")
-    energy_threshold: float = option(0.01, gt=0, lt=1,
-                                     doc="neo-hookean, energy: density rho0 where the blend g(rho) turns "
-                                         "from linear (below) to nonlinear (above)")
-    energy_sharpness: float = option(500.0, gt=0, le=1e4, doc="neo-hookean, energy: steepness beta of g(rho)")
-    newton_tol: float = option(1e-10, gt=0, lt=1, doc="neo-hookean: Newton tolerance, the norm of S on "
-                                                      "the free dofs relative to the load's")
-    max_newton: int = option(25, ge=1, le=1000, doc="neo-hookean: Newton iterations per load step")
-    max_cutbacks: int = option(20, ge=0, le=1000, doc="neo-hookean: halvings of the load step before failing")
-
-    def __post_init__(self):
-        if not self.clamped:
-            raise InputError("clamped", [], "allowed: at least one of " + ", ".join(map(repr, SIDES))
-                             + " (a structure held nowhere has no stiffness against rigid motion)")
 
 
 @dataclass(frozen=True)
@@ -284,25 +156,6 @@ class SolverSettings:
                                    "robust on a shared machine; 0: leave as the environment says)")
     max_memory_gb: float = option(0.0, ge=0, doc="refuse a solve whose estimated memory exceeds "
                                                  "this [GB] (0: the machine's available memory)")
-
-
-BAND_MODES = ("off", "auto", "layers", "distance")
-
-
-@dataclass(frozen=True)
-class BandSettings:
-    """Band-localized mesh motion (table ``[mover.band]``, see :mod:`tofsi.mesh.band`)."""
-
-    mode: str = option("off", choices=BAND_MODES,
-                       doc="off: the mover moves the whole fluid mesh; layers / distance: only the "
-                           "quads within `layers` element layers / `distance` of the structure, the "
-                           "band's outer edge held fixed; auto: the distance from the size of the motion")
-    layers: int = option(8, ge=1, le=100_000, doc="element layers of the band (mode layers); the "
-                                                   "least the band holds in mode auto")
-    distance: float = option(0.1, gt=0, doc="reach of the band from the structure [m] (mode distance)")
-    motion_multiple: float = option(15.0, gt=0, doc="mode auto: the band reaches this multiple of the "
-                                                   "structure's largest displacement (when known: "
-                                                   "mesh-motion scenes; else `layers`)")
 
 
 TUNE_PARAMETRIZATIONS = ("layers", "profile")

@@ -1,4 +1,4 @@
-"""The tables of a scene file, registered in :data:`tofsi.core.registry.SCENE_TABLES` (one list).
+"""The scene's own tables, registered in :data:`tofsi.core.registry.SCENE_TABLES`.
 
 Each table is one :class:`SceneTable` entry: its frozen record (validated by
 :func:`tofsi.core.config.build`), how it is built from the raw scene, how it is
@@ -6,8 +6,9 @@ written back as plain TOML/JSON values, the rows of the generated scene
 reference (``docs/scenes.md``) and the keys a ``--resume`` may change. Scene
 loading (:func:`tofsi.scene.scene.scene_from_dict`), the provenance record
 (:func:`tofsi.runs.provenance.scene_tables`), the ``--resume`` check and the scene
-reference all walk this registry; a field with settings of its own (see
-:mod:`tofsi.fields`) registers its table here too.
+reference walk this registry and, beside it, the tables of the registered fields
+(:attr:`tofsi.fields.base.Field.tables`: ``[fluid]``, ``[structure]``, ``[mover]``, or a
+table of your own field), both listed by :func:`tofsi.scene.scene.table_entries`.
 
 Which mover moves the mesh is one setting, written either as
 ``effects.mesh_motion`` or as ``mover.name`` (``"none"`` switches mesh
@@ -19,15 +20,13 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import dataclass
-from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 import movers
-from tofsi.core.config import build, coerce, documentation, option
+from tofsi.core.config import build, documentation, option
 from tofsi.core.errors import InputError
 from tofsi.core.registry import SCENE_TABLES
-from tofsi.scene.settings import (MAX_STIFFENING, BandSettings, CoupledSettings, DesignSettings, FluidSettings,
-                            OptimizerSettings, SolverSettings, StructureSettings, TuneSettings)
+from tofsi.scene.settings import CoupledSettings, DesignSettings, OptimizerSettings, SolverSettings, TuneSettings
 
 THIN = 1e-6                 # solids thinner than this fraction of the channel get a warning
 log = logging.getLogger(__name__)
@@ -54,7 +53,9 @@ class SceneTable:
     writer : ``record -> plain table`` when ``dataclasses.asdict`` is not enough;
     reference : ``() -> rows (key, default, allowed, meaning)`` of the scene reference;
     resumable : keys of the table a ``--resume`` may change (they cannot change the
-    replayed history).
+    replayed history);
+    check : ``scene -> None``, raising an :class:`~tofsi.core.errors.InputError` for keys
+    of the table that contradict other tables (run once every table is built).
     """
 
     name: str
@@ -63,6 +64,7 @@ class SceneTable:
     writer: Callable[[Any], dict] | None = None
     reference: Callable[[], list] | None = None
     resumable: tuple[str, ...] = ()
+    check: Callable[[Any], None] | None = None
 
     def build(self, raw_scene: dict):
         """The record from the raw scene's table (defaults where the table is absent)."""
@@ -176,25 +178,6 @@ class Effects:
                              "allowed: 'none' or one of " + ", ".join(map(repr, names)))
 
 
-LAYERS_FROM = ("density", "solid")
-
-
-@dataclass(frozen=True)
-class MoverSettings:
-    """The mover and its parameters (``[mover]`` plus ``[mover.<name>]`` tables)."""
-
-    name: str
-    layers: tuple[float, ...] = ()
-    params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-    layers_from: str = "density"
-    band: BandSettings = dataclasses.field(default_factory=BandSettings)
-
-    @property
-    def options(self):
-        """The selected mover's parameter record (None when mesh motion is off)."""
-        return self.params.get(self.name)
-
-
 def mover_name(raw: dict) -> str:
     """The mover a raw scene names, by ``mover.name`` or ``effects.mesh_motion`` (they must agree)."""
     by_effects = raw.get("effects", {}).get("mesh_motion") if isinstance(raw.get("effects"), dict) else None
@@ -218,53 +201,9 @@ def _build_effects(raw, raw_scene) -> Effects:
     return build(Effects, {**raw, "mesh_motion": mover_name(raw_scene)}, "effects")
 
 
-def _build_mover(raw, raw_scene) -> MoverSettings:
-    if not isinstance(raw, dict):
-        raise InputError("mover", raw, "expected a table")
-    names = movers.available()
-    raw = {k: v for k, v in raw.items() if k != "name"}
-    layers = raw.pop("layers", [])
-    layers_from = coerce(str, raw.pop("layers_from", "density"), "mover.layers_from",
-                         dict(choices=LAYERS_FROM))
-    band = build(BandSettings, raw.pop("band", {}), "mover.band")
-    for key, value in raw.items():
-        if key not in names:
-            raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, layers_from, "
-                             "band, or a parameter table of one of " + ", ".join(map(repr, names)))
-    factors = coerce(tuple[float, ...], layers, "mover.layers",
-                     dict(gt=0, le=MAX_STIFFENING, doc="stiffening factor per element layer"))
-    params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
-    return MoverSettings(name=mover_name(raw_scene), layers=factors, params=MappingProxyType(params),
-                         layers_from=layers_from, band=band)
-
-
-def _write_mover(mover: MoverSettings) -> dict:
-    table = {"name": mover.name, "layers": list(mover.layers), "layers_from": mover.layers_from,
-             "band": plain(mover.band)}
-    table.update({name: plain(params) for name, params in mover.params.items()})
-    return table
-
-
-def _mover_rows() -> list:
-    rows = [("mover.name", "none", "none, " + ", ".join(movers.available()),
-             "the mover (same setting as effects.mesh_motion)"),
-            ("mover.layers", (), f"list of numbers, each 0 < value <= {MAX_STIFFENING:g}",
-             "stiffening factor of each element layer counted from the interface"),
-            ("mover.layers_from", "density", "one of 'density', 'solid'",
-             "design scenes: count the layers from the evolving design (smooth dilation of the "
-             "densities, gray elements partly stiffened, differentiable) or from the fixed solid only")]
-    rows += documentation(BandSettings, "mover.band")
-    for name in movers.available():
-        rows += documentation(movers.mover_class(name).Params, f"mover.{name}")
-    return rows
-
-
 for _table in (SceneTable("geometry", Geometry), SceneTable("mesh", MeshSettings),
                SceneTable("deformation", Deformation),
                SceneTable("effects", Effects, builder=_build_effects),
-               SceneTable("mover", MoverSettings, builder=_build_mover, writer=_write_mover,
-                          reference=_mover_rows),
-               SceneTable("fluid", FluidSettings), SceneTable("structure", StructureSettings),
                SceneTable("design", DesignSettings),
                SceneTable("optimizer", OptimizerSettings, resumable=("max_iter", "output_every")),
                SceneTable("coupled", CoupledSettings), SceneTable("tune", TuneSettings),
