@@ -35,7 +35,6 @@ record; no physics object is ever changed to switch them.
 
 from __future__ import annotations
 
-import warnings
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
@@ -253,13 +252,6 @@ class State:
     def mesh_displacement(self) -> np.ndarray | None:
         """Fluid-mesh displacement ``(n, 2)`` the flow was solved on (None: reference mesh)."""
         return None if self.x is None else self.x.reshape(-1, 2)
-
-    @property
-    def displacement(self) -> np.ndarray | None:
-        """Deprecated name of :attr:`mesh_displacement` (it is not the structure's)."""
-        warnings.warn("State.displacement is the fluid-mesh displacement; use State.mesh_displacement "
-                      "(State.u is the structure's)", DeprecationWarning, stacklevel=2)
-        return self.mesh_displacement
 
     def data(self) -> "State":
         """The same state without linearizations (no factorizations held: for records)."""

@@ -111,7 +111,7 @@ class BlockSystem:
                                      f"field {explicit[0]!r} is an explicit (path-dependent) map "
                                      "without a residual form; use 'partitioned' or 'auto'")
         sizes = [b.size for b in self.blocks]
-        self.offsets = dict(zip(self.names, np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)))
+        self.offsets = dict(zip(self.names, np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int), strict=True))
         self.size = int(sum(sizes))
         self._orderings: dict[tuple[str, ...], np.ndarray | None] = {}
 
@@ -184,7 +184,7 @@ class BlockSystem:
                       (lin.coupling(b) if b in self.by_name[a].inputs else None) for b in names]
             rows.append(sp.hstack([canonical_csr(B) if B is not None else      # CSR fast paths:
                                    sp.csr_matrix((self.by_name[a].size, self.by_name[b].size))
-                                   for B, b in zip(blocks, names)], format="csr"))
+                                   for B, b in zip(blocks, names, strict=True)], format="csr"))
         return sp.vstack(rows, format="csr")                    # no COO round trip, unlike bmat
 
     def ordering(self, names) -> np.ndarray | None:
@@ -307,7 +307,7 @@ class BlockSystem:
             lins_at = {b.name: b.linearize(values, rho, params) for b in blocks} if linearize else None
             residuals = ([lins_at[b.name].residual for b in blocks] if linearize
                          else [b.residual(values, rho, params) for b in blocks])
-            return max(float(np.linalg.norm(r)) / sc for r, sc in zip(residuals, scales)), lins_at
+            return max(float(np.linalg.norm(r)) / sc for r, sc in zip(residuals, scales, strict=True)), lins_at
 
         accepted = None                                 # the accepted full step's linearizations
         for it in range(s.max_iter + 1):
@@ -315,10 +315,10 @@ class BlockSystem:
             R = [lins[b.name].residual for b in blocks]
             if scales is None:
                 scales = [b.residual_scale(fields, rho, params, lins[b.name]) for b in blocks]
-            norms = [float(np.linalg.norm(r)) / sc for r, sc in zip(R, scales)]
-            history.append({"iteration": it, **dict(zip(comp, norms))})
+            norms = [float(np.linalg.norm(r)) / sc for r, sc in zip(R, scales, strict=True)]
+            history.append({"iteration": it, **dict(zip(comp, norms, strict=True))})
             log.info("monolithic Newton %d: scaled residuals %s", it,
-                     ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms)))
+                     ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms, strict=True)))
             if max(norms) <= s.tol:
                 state.linearizations.update(lins)
                 state.coupled[comp] = CoupledLinearization(self, comp, lins, solver)

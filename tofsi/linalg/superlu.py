@@ -28,7 +28,6 @@ def unavailable() -> str | None:
 
 class Backend:
     name = "superlu"
-    reproducible = True
 
     def __init__(self):
         self.analyses = 0

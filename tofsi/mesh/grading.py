@@ -14,6 +14,8 @@ therefore hit every structure edge exactly.
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 
 from tofsi.core.errors import InputError
@@ -41,7 +43,7 @@ def graded_axis(length: float, breakpoints, features, h_min: float, h_max: float
     cuts = cuts[np.r_[True, np.diff(cuts) > tol]]
     cuts[-1] = length
     lines = [0.0]
-    for a, b in zip(cuts[:-1], cuts[1:]):
+    for a, b in pairwise(cuts):
         s = np.linspace(a, b, samples)
         if features:
             h = np.minimum(h_max, h_min + (growth - 1.0) * distance_to_intervals(s, features))

@@ -26,9 +26,6 @@ from scipy.spatial import cKDTree
 from tofsi.mesh.structured import DESIGN, SOLID
 
 
-KERNELS = ("linear", "circular")
-
-
 def filter_weights(distance: np.ndarray, radius: float, kernel: str) -> np.ndarray:
     """Filter weights at ``distance`` <= ``radius``: ``r - d`` (linear hat) or ``sqrt(1 - d^2/r^2)``
     (circular, TOFLUX's)."""

@@ -9,6 +9,8 @@ rule (:func:`settled`) and name NLopt's end the same way (:func:`stop_reason`).
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import nlopt
 import numpy as np
 
@@ -36,7 +38,7 @@ def settled(rows, settings) -> bool:
     if all(it.change < s.tol_change for it in rows[-2:]):
         return True
     f = [it.objective for it in rows[-(s.stall_iterations + 1):]]
-    return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in zip(f, f[1:]))
+    return all(abs(b - a) <= s.tol_objective * max(abs(a), 1e-300) for a, b in pairwise(f))
 
 
 def run_stage(algorithm: str, start: np.ndarray, step: float, objective, constraint, n_constraints: int,

@@ -18,7 +18,6 @@ and passed into the design map and every solve; nothing else holds them.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,11 +89,6 @@ class Problem:
         if not isinstance(params, Continuation):
             raise TypeError("set_stage takes a Continuation record, e.g. tofsi.coupling.coupled.continuation(scene, stage)")
         self.params = params
-
-    def reset_solvers(self) -> None:
-        """Deprecated: every solve creates its own solvers, so there is nothing to reset."""
-        warnings.warn("Problem.reset_solvers() is no longer needed: every solve starts with fresh "
-                      "solvers", DeprecationWarning, stacklevel=2)
 
     def set_guess(self, state: State | None) -> None:
         """The state the next forward solve starts from."""

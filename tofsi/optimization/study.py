@@ -94,7 +94,7 @@ def points(sweeps: list[Sweep]) -> list[dict]:
         raise InputError("--sweep", " ".join(f"{s.key} ({len(s.values)})" for s in sweeps),
                          f"the grid has {total:,} points; allowed: at most {MAX_POINTS:,} runs")
     keys = [s.key for s in sweeps]
-    return [dict(zip(keys, combo)) for combo in itertools.product(*(s.values for s in sweeps))]
+    return [dict(zip(keys, combo, strict=True)) for combo in itertools.product(*(s.values for s in sweeps))]
 
 
 def overrides_for(point: dict) -> list[str]:

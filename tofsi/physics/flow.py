@@ -351,7 +351,7 @@ class Flow:
             dw[self.bc.fixed] = 0.0
             report.newton_iterations += 1
 
-            def trial(alpha):
+            def trial(alpha, w=w, dw=dw):
                 w_t = w + alpha * dw
                 if alpha == 1.0:                        # keep the Jacobian: next iteration's
                     J_t, R_t, _ = self.jacobian(w_t, x, rho, density, params)

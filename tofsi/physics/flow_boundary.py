@@ -42,6 +42,7 @@ not depend on the mesh motion.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -204,7 +205,7 @@ class FlowBoundary:
                                                           f"{o.side} side)")
         for side in SIDES:
             segs = sorted((o for o in self.openings if o.side == side), key=lambda o: o.start)
-            for a, b in zip(segs, segs[1:]):
+            for a, b in pairwise(segs):
                 if b.start < a.end:
                     raise InputError(b.key, [b.start, b.end], f"overlaps {a.key} = {[a.start, a.end]}")
         if not any(o.kind in ("inflow", "uniform") for o in self.openings):

@@ -182,7 +182,7 @@ def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool
         groups.setdefault(tuple(r[k] for k in series_keys), []).append(r)
 
     def label(group):
-        return ", ".join(f"{k}={v}" for k, v in zip(series_keys, group)) or None
+        return ", ".join(f"{k}={v}" for k, v in zip(series_keys, group, strict=True)) or None
 
     any_failed = any(failed(r) for r in rows)
     if len(numeric) == 1:
@@ -193,13 +193,13 @@ def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool
         for group, sel in groups.items():
             ok = [r for r in sel if not failed(r)]
             bad = [r for r in sel if failed(r)]
-            for i, (ax, f) in enumerate(zip(axes, figures)):
+            for i, (ax, f) in enumerate(zip(axes, figures, strict=True)):
                 ax.plot([r[key] for r in ok], [r.get(f, np.nan) for r in ok], "o-", ms=3, label=label(group))
                 if bad:
                     _mark_failed(ax, [r[key] for r in bad], [r.get(f, np.nan) for r in bad],
                                  None if labelled or i else "failed")
             labelled = labelled or bool(bad)
-        for ax, f in zip(axes, figures):
+        for ax, f in zip(axes, figures, strict=True):
             ax.set_xlabel(key)
             ax.set_ylabel(FIGURE_LABELS[f])
             ax.grid(alpha=0.3)
@@ -212,7 +212,7 @@ def plot_sweep(path, rows: list[dict], keys: list[str], title: str = "") -> bool
         kx, ky = numeric
         fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 5.0), dpi=100,
                                  squeeze=False, layout="constrained")
-        for ax, (group, sel) in zip(axes[0], groups.items()):
+        for ax, (group, sel) in zip(axes[0], groups.items(), strict=True):
             xs = sorted({r[kx] for r in sel})
             ys = sorted({r[ky] for r in sel})
             Z = np.full((len(ys), len(xs)), np.nan)
