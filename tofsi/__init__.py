@@ -1,8 +1,8 @@
 """tofsi: topology optimization of fluid-structure interaction on structured quads."""
 
+from tofsi.core.version import VERSION as __version__
 from tofsi.scene.scene import Scene, load_scene
 
-__version__ = "0.1.0"
 __all__ = ["Problem", "Scene", "load_scene", "__version__"]
 
 

@@ -9,8 +9,8 @@ resumed). Nothing else lists them: scene loading, provenance, ``--resume``,
 the memory guard, the pictures and the generated scene reference all walk
 the registry, so a new entry reaches every one of them and none can miss it.
 
-The registries themselves live here, in the foundation, so that a lower
-floor (the scene's configuration records) can name a registry's entries
+The registries themselves live here, on the core floor, so that a lower
+floor (the scene's records and loading) can name a registry's entries
 without importing the modules that fill them. Each registry knows the
 module of its built-in entries, its *home* (:mod:`tofsi.objectives`,
 :mod:`tofsi.fields`, :mod:`tofsi.scene.tables`), by name only, and imports it

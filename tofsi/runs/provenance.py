@@ -26,6 +26,7 @@ import subprocess
 from functools import lru_cache
 from pathlib import Path
 
+from tofsi.core.version import VERSION
 from tofsi.scene.scene import table_entries
 from tofsi.scene.tables import plain
 
@@ -113,7 +114,7 @@ def now() -> str:
 def git_commit() -> tuple[str | None, bool | None]:
     """``(commit, dirty)`` of the checkout tofsi runs from, or ``(None, None)`` when tofsi
     is not a git checkout (an installed wheel) or git is unavailable."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     if not ((root / ".git").exists() and (root / "pyproject.toml").is_file()):
         return None, None
 
@@ -132,9 +133,8 @@ def versions() -> dict:
     import numpy
     import scipy
 
-    import tofsi
     commit, dirty = git_commit()
-    return {"tofsi_version": tofsi.__version__, "git_commit": commit, "git_dirty": dirty,
+    return {"tofsi_version": VERSION, "git_commit": commit, "git_dirty": dirty,
             "python": platform.python_version(), "numpy": numpy.__version__, "scipy": scipy.__version__}
 
 
