@@ -111,7 +111,7 @@ class BlockSystem:
                                      f"field {explicit[0]!r} is an explicit (path-dependent) map "
                                      "without a residual form; use 'partitioned' or 'auto'")
         sizes = [b.size for b in self.blocks]
-        self.offsets = dict(zip(self.names, np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int), strict=True))
+        self.offsets = dict(zip(self.names, np.cumsum([0, *sizes])[:-1].astype(int), strict=True))
         self.size = int(sum(sizes))
         self._orderings: dict[tuple[str, ...], np.ndarray | None] = {}
 
