@@ -88,8 +88,8 @@ def mover_study(quick: bool) -> list[dict]:
                              "error": float(np.abs(x - x_ref).max() / np.abs(x_ref).max()),
                              "default": v == default, "reference_time_s": t_ref})
             for solver in ("direct", "amg"):
-                x, skew, t, n = move(problem, mover, [f"mover.{mover}.linear_solver={solver}"])
-                rows.append({"study": "solver", "problem": problem, "mover": mover, "parameter": "linear_solver",
+                x, skew, t, n = move(problem, mover, [f"mover.{mover}.tangent_solver={solver}"])
+                rows.append({"study": "solver", "problem": problem, "mover": mover, "parameter": "tangent_solver",
                              "value": solver, "time_s": t, "min_skewness": skew, "nodes": n,
                              "error": float(np.abs(x - x_ref).max() / np.abs(x_ref).max()),
                              "default": solver == "direct"})

@@ -93,7 +93,7 @@ def time_iteration(problem, gamma, rng) -> dict:
     problem.evaluate(gamma2)
     problem.constraints(gamma2)
     adjoint = time.perf_counter() - t0
-    system = problem.model.system_for(state.params)
+    system = problem.model.system_for(state.stage)
     method = Adjoint(system, state).method()
     fresh = problem.solve(nearby(gamma2))     # blocks not yet built by any adjoint
     t0 = time.perf_counter()
@@ -117,7 +117,8 @@ def run_fsi_case(h: float, coupling: str) -> dict:
     import tofsi
 
     problem = tofsi.Problem(tofsi.load_scene(FSI_SCENE, [f"mesh.h_min={h}", f"mesh.h_max={h}"]))
-    problem.set_stage(dataclasses.replace(problem.params, beta=problem.scene.design.beta[-1], coupling=coupling))
+    problem.set_stage(dataclasses.replace(problem.stage.with_params(beta=problem.scene.design.beta[-1]),
+                                          coupling=coupling))
     rng = np.random.default_rng(0)
     return time_iteration(problem, post_design(problem, rng), rng)
 

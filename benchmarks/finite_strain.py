@@ -40,7 +40,7 @@ def benchmark_state(problem):
     """The flow state at the post design (beta 16), as in ``adjoint_speed.py``."""
     from benchmarks.adjoint_speed import post_design
 
-    problem.set_stage(dataclasses.replace(problem.params, beta=16.0))
+    problem.set_stage(problem.stage.with_params(beta=16.0))
     return problem.solve(post_design(problem, np.random.default_rng(0)))
 
 
@@ -80,12 +80,12 @@ def main(argv=None) -> dict:
             pairs = []
             for _ in range(args.repeat):
                 t_lin, u_lin = timed(lambda: linear.factorize(rho, params).solve(linear.bc.homogenize(load)))
-                t_nh, sol = timed(lambda: finite.finite().solve(load, rho, simp))
+                t_nh, sol = timed(lambda: finite.material().elasticity.solve(load, rho, simp))
                 pairs.append((t_lin, t_nh))
             t_lin, t_nh = np.median(np.array(pairs), axis=0)
             ratio = float(np.median([b / a for a, b in pairs]))
-            near = finite.finite().solve(0.95 * load, rho, simp).u
-            warm = [timed(lambda: finite.finite().solve(load, rho, simp, guess=near)) for _ in range(args.repeat)]
+            near = finite.material().elasticity.solve(0.95 * load, rho, simp).u
+            warm = [timed(lambda: finite.material().elasticity.solve(load, rho, simp, guess=near)) for _ in range(args.repeat)]
             t_warm = float(np.median([t for t, _ in warm]))
             report = sol.report
             rows.append({"fraction": fraction,

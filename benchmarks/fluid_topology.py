@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 import subprocess
 import sys
@@ -81,7 +80,7 @@ def analyse(case: str, n: int, folder: Path) -> dict:
     result = run(case, n, folder)
     scene = tofsi.load_scene(SCENES / f"{case}.toml", overrides(n))
     p = tofsi.Problem(scene)
-    p.set_stage(dataclasses.replace(p.params, brinkman_q=scene.design.brinkman_q[-1]))   # the final interpolation
+    p.set_stage(p.stage.with_params(brinkman_q=scene.design.brinkman_q[-1]))   # the final interpolation
     gamma = np.load(folder / "design.npy")
     rho = p.densities(gamma)
     d = p.map.design
@@ -109,7 +108,7 @@ def picture(case: str, n: int, folder: Path, out: Path) -> None:
     from tofsi.runs.plotting import plot_design
     scene = tofsi.load_scene(SCENES / f"{case}.toml", overrides(n))
     p = tofsi.Problem(scene)
-    p.set_stage(dataclasses.replace(p.params, brinkman_q=scene.design.brinkman_q[-1]))
+    p.set_stage(p.stage.with_params(brinkman_q=scene.design.brinkman_q[-1]))
     gamma = np.load(folder / "design.npy")
     rho, state = p.densities(gamma), p.solve(gamma)
     m = p.model.mesh

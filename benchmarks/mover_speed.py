@@ -38,7 +38,7 @@ REFINE = [2.2, 3.8, 6.9, 12.0]          # about 1e4, 3e4, 1e5, 3e5 nodes
 def overrides(refine: float, mover: str, solver: str) -> list[str]:
     return [f"mesh.h_min={0.0125 / refine}", f"mesh.h_max={0.05 / refine}",
             "deformation.mode=rotation", "deformation.rotation_deg=8", f"mover.name={mover}",
-            f"mover.{mover}.linear_solver={solver}"] + (["mover.linear.chi=1"] if mover == "linear" else [])
+            f"mover.{mover}.tangent_solver={solver}"] + (["mover.linear.chi=1"] if mover == "linear" else [])
 
 
 def run_case(refine: float, case: str, solver: str) -> dict:
@@ -46,7 +46,7 @@ def run_case(refine: float, case: str, solver: str) -> dict:
     import numpy as np
 
     import tofsi
-    from tofsi.linalg import make_solver, rigid_body_modes
+    from tofsi.linalg import LinearAlgebra
     from tofsi.coupling.motion import motion_setup, run_move
 
     from tofsi.linalg.threads import configure
@@ -63,11 +63,7 @@ def run_case(refine: float, case: str, solver: str) -> dict:
         K = problem.bc.matrix(Ke)
         b = np.random.default_rng(0).normal(size=K.shape[0])
         t0 = time.perf_counter()
-        if solver == "direct":
-            from tofsi.linalg import nested_dissection
-            make_solver(K, "direct", perm=nested_dissection(problem.dof_grid())).solve(b)
-        else:
-            make_solver(K, "amg", near_null=rigid_body_modes(problem.points)).solve(b)
+        LinearAlgebra.default().elasticity(K, problem.points, lambda: problem.ordering, amg=solver == "amg").solve(b)
         out["time_s"] = time.perf_counter() - t0
     else:
         t0 = time.perf_counter()

@@ -84,7 +84,7 @@ def main(output: Path) -> dict:
                       "min_skewness_over_run": min(skew) if skew else None,
                       "min_skewness_history": skew}
     judge = tofsi.Problem(tofsi.load_scene(SCENE, BASE))         # two-way physics decides
-    judge.set_stage(dataclasses.replace(judge.params, beta=judge.scene.design.beta[-1], coupling="two-way"))
+    judge.set_stage(dataclasses.replace(judge.stage.with_params(beta=judge.scene.design.beta[-1]), coupling="two-way"))
     control = judge.densities(designs["one_way_control"])[judge.map.design]
     for name, gamma in designs.items():
         state = judge.solve(gamma)

@@ -46,13 +46,13 @@ def post_flow(overrides):
     problem = tofsi.Problem(tofsi.load_scene(SCENE, ONE_WAY + overrides))
     c = problem.model.mesh.centroids[problem.model.design_elements]
     post = (np.abs(c[:, 0] - 1.0) < 0.2) & (c[:, 1] < 0.6)
-    problem.set_stage(dataclasses.replace(problem.params, beta=16.0))
+    problem.set_stage(problem.stage.with_params(beta=16.0))
     return problem, problem.solve(np.where(post, 0.95, 0.05))
 
 
 def smallest_det(mesh, structure, u, elements) -> float:
     """min det(I + grad u) over the Gauss points of ``elements``."""
-    F = structure.finite().kernel.deformation_gradient(u[structure.dofs])[elements]
+    F = structure.material().elasticity.kernel.deformation_gradient(u[structure.dofs])[elements]
     return float((F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]).min())
 
 
@@ -66,7 +66,8 @@ def one(problem, state, youngs_modulus: float, e_min_ratio: float, interpolation
     t0 = time.perf_counter()
     with model.linear_algebra.blas():
         try:
-            sol = st.newton_solve(state.w, None, state.rho, state.params)
+            load = st.load(state.w, None, state.rho, state.params)
+            sol = st.material().elasticity.solve(load, state.rho, st.simp(state.params))
         except NumericalError as err:
             d = err.diagnostic
             return {**row, "converged": False, "load_factor": d["load_factor"],

@@ -57,7 +57,7 @@ def optimize_scene(scene_file: Path, output: Path, overrides=(), overwrite: bool
     folder = RunFolder(output, program=program, overwrite=overwrite, replaces_own=True).check()
     problem = tofsi.Problem(scene)         # flow, structure and mesh motion: a two-way block system
     d = scene.design
-    stages = [f"beta {continuation(scene, k).beta:g} {continuation(scene, k).coupling or scene.effects.coupling}"
+    stages = [f"beta {continuation(scene, k).params.beta:g} {continuation(scene, k).coupling or scene.effects.coupling}"
               for k in range(d.n_stages)]
     print(f"{problem.n_design} design variables, mover {scene.mover.name}, "
           f"{problem.model.mesh.n_elements} elements; stages: " + ", ".join(stages))

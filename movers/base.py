@@ -33,7 +33,7 @@ from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.complex_step import derivative
 from tofsi.fem.dirichlet import DirichletOperator
-from tofsi.linalg import RecyclingSolver, make_solver, nested_dissection, rigid_body_modes
+from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
 
 log = logging.getLogger(__name__)
 
@@ -350,15 +350,12 @@ class Mover(ABC):
     # helpers ---------------------------------------------------------------
     def _solver(self, problem: MotionProblem) -> RecyclingSolver:
         """A solver for the mover's sequence of tangent/stiffness systems."""
-        kind = ("amg" if getattr(problem.linear_algebra, "iterative", False)    # the model's iterative path
-                else getattr(self.params, "linear_solver", "direct"))
-        near_null = rigid_body_modes(problem.points) if kind == "amg" else None
-        perm = problem.ordering if kind == "direct" else None
+        la = problem.linear_algebra or LinearAlgebra.default()
+        amg = getattr(self.params, "tangent_solver", "direct") == "amg"     # a mover without the key: LU
         tol = getattr(self.params, "linear_tol", 1e-10)
         symmetric = problem.blend is None            # the blended form is not symmetric
-        return RecyclingSolver(lambda K: make_solver(K, kind, near_null=near_null, perm=perm, tol=tol,
-                                                     symmetric=symmetric,
-                                                     linear_algebra=problem.linear_algebra), rtol=tol)
+        return RecyclingSolver(lambda K: la.elasticity(K, problem.points, lambda: problem.ordering, tol=tol,
+                                                       symmetric=symmetric, amg=amg), rtol=tol)
 
     @staticmethod
     def _start(problem: MotionProblem, prescribed: np.ndarray):

@@ -23,10 +23,12 @@ from tofsi.fem.elasticity import element_stiffness, lame
 
 @dataclass(frozen=True)
 class LinearParams:
+    renamed_keys = {"linear_solver": "tangent_solver"}     # the old name, accepted with a warning
     poisson_ratio: float = option(0.3, gt=-1.0, lt=0.5, doc="Poisson's ratio of the mesh")
     chi: float = option(0.0, ge=0, le=10, doc="Jacobian stiffening power (0: none)")
     increments: int = option(1, ge=1, le=100_000, doc="increments on the updated mesh")
-    linear_solver: str = option("direct", choices=("direct", "amg"), doc="sparse LU or AMG-CG")
+    tangent_solver: str = option("direct", choices=("direct", "amg"),
+                                 doc="the tangent's linear solver: sparse LU or AMG-CG")
     linear_tol: float = option(1e-10, gt=0, lt=1e-3, doc="relative tolerance of recycled iterative solves")
 
 

@@ -34,10 +34,12 @@ CHOICES = ("1-3", "2-4", "both", "selective")
 
 @dataclass(frozen=True)
 class SpringParams:
+    renamed_keys = {"linear_solver": "tangent_solver"}     # the old name, accepted with a warning
     diagonals: str = option("selective", choices=CHOICES, doc="quad triangulation")
     increments: int = option(30, ge=1, le=100_000, doc="equal increments of the motion")
     torsion_scale: float = option(1.0, gt=0, doc="torsional stiffness scale TSC")
-    linear_solver: str = option("direct", choices=("direct", "amg"), doc="sparse LU or AMG-CG")
+    tangent_solver: str = option("direct", choices=("direct", "amg"),
+                                 doc="the tangent's linear solver: sparse LU or AMG-CG")
     linear_tol: float = option(1e-10, gt=0, lt=1e-3, doc="relative tolerance of recycled iterative solves")
 
 

@@ -54,6 +54,7 @@ ROUND_OFF = 1e3 * np.finfo(float).eps      # attainable |R| relative to the forc
 
 @dataclass(frozen=True)
 class YeohParams:
+    renamed_keys = {"linear_solver": "tangent_solver"}     # the old name, accepted with a warning
     A10: float = option(1.0, gt=0, doc="first Yeoh coefficient [Pa]")
     A20: float = option(1e3, ge=0, doc="second Yeoh coefficient [Pa] (stiffened per layer)")
     A30: float = option(0.0, ge=0, doc="third Yeoh coefficient [Pa]")
@@ -64,7 +65,8 @@ class YeohParams:
     max_newton: int = option(25, ge=1, le=1000, doc="Newton iterations per increment")
     min_increment: float = option(1e-4, gt=0, lt=1, doc="smallest load increment before failing")
     max_cutbacks: int = option(40, ge=0, le=10_000, doc="increment cuts before failing")
-    linear_solver: str = option("direct", choices=("direct", "amg"), doc="sparse LU or AMG-CG")
+    tangent_solver: str = option("direct", choices=("direct", "amg"),
+                                 doc="the tangent's linear solver: sparse LU or AMG-CG")
     linear_tol: float = option(1e-10, gt=0, lt=1e-3, doc="relative tolerance of recycled iterative solves")
 
 

@@ -83,7 +83,7 @@ def test_two_way_block_and_direct_newton_solves_agree_and_take_the_same_newton_s
     solver: the same fields to the coupling tolerance, in the same number of Newton steps."""
     states = {}
     for kind in ("block", "direct"):
-        model, rho = soft_model("monolithic", f"coupled.linear_solver={kind}")
+        model, rho = soft_model("monolithic", f"coupled.jacobian_solver={kind}")
         states[kind] = model.solve(rho)
     a, b = states["block"], states["direct"]
     assert np.abs(a.x).max() > 1e-3
@@ -106,7 +106,7 @@ def test_a_newton_whose_block_gmres_fails_falls_back_to_the_whole_jacobians_lu(m
         def preconditioner(self, transpose=False):
             return np.copy
 
-    model, rho = soft_model("monolithic", "coupled.linear_solver=direct")
+    model, rho = soft_model("monolithic", "coupled.jacobian_solver=direct")
     reference = model.solve(rho)
     monkeypatch.setattr(block_system, "BlockGaussSeidel", functools.partial(Useless, max_iter=1))
     model, rho = soft_model("monolithic")

@@ -145,9 +145,9 @@ def test_a_field_defined_in_a_test_passes_the_taylor_test_through_the_generic_ad
     rho = model.densities(rng.uniform(0.2, 0.8, c.shape[0]))
 
     def value(r):
-        state = system.solve(r, model.params)
+        state = system.solve(r, model.stage.params)
         return quantity(model, state)[0]
-    state = system.solve(rho, model.params)
+    state = system.solve(rho, model.stage.params)
     f0, partials = quantity(model, state)
     adjoint = Adjoint(system, state)
     grad = adjoint.gradient(partials)

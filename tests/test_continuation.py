@@ -6,7 +6,6 @@ fresh problem at penalty 3 gives (the structure's factorization used to be cache
 alone, so the second value was the penalty-1 one). The same for the Brinkman q.
 """
 
-import dataclasses
 
 import numpy as np
 import pytest
@@ -29,9 +28,9 @@ def test_a_stage_change_at_constant_beta_equals_a_fresh_problem(first, second, k
     P = tofsi.Problem(load("beam_in_channel_optimization", *BASE, f"{schedule}=[{first}]"))
     gamma = perturbed_uniform(P)
     field = "penalty" if key == "penalty" else "brinkman_q"
-    P.set_stage(dataclasses.replace(P.params, beta=16.0, **{field: first}))
+    P.set_stage(P.stage.with_params(beta=16.0, **{field: first}))
     f_first, _ = P.evaluate(gamma)
-    P.set_stage(dataclasses.replace(P.params, **{field: second}))
+    P.set_stage(P.stage.with_params(**{field: second}))
     f_second, df_second = P.evaluate(gamma)
     fresh = tofsi.Problem(load("beam_in_channel_optimization", *BASE, f"{schedule}=[{second}]"))
     f_fresh, df_fresh = fresh.evaluate(gamma)

@@ -62,7 +62,7 @@ def test_every_block_passes_the_taylor_test(case, interpolation):
     state = P.solve(gamma)
     if case != "one-way":
         assert state.reports["coupling"]["method"] == case.split()[0]
-    rows = check_blocks(P.model.system_for(state.params), state)
+    rows = check_blocks(P.model.system_for(state.stage), state)
     names = {r["check"] for r in rows}
     assert {"S_u", "S_w", "S_rho"} <= names and ("S_x" in names) == (case != "one-way")
     assert all(r["passed"] for r in rows), [r for r in rows if not r["passed"]]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import tofsi
-from tofsi.core.blocks import Continuation
+from tofsi.core.blocks import Continuation, Stage
 from tofsi.coupling.coupled import CoupledModel
 from tofsi.physics.flow import Flow
 from tofsi.physics.fluid_load import FluidForce
@@ -29,12 +29,12 @@ def point():
     model = CoupledModel(load("beam_in_channel_optimization", *SCENE))
     rng = np.random.default_rng(7)
     rho = model.densities(rng.uniform(0.2, 0.8, model.design_elements.size))
-    params = dataclasses.replace(model.params, load_exponent=2.0)
-    state = model.solve(rho, params=params)
+    stage = model.stage.with_params(load_exponent=2.0)
+    state = model.solve(rho, stage=stage)
     n = model.mesh.n_nodes
     x = state.x if state.x is not None else np.zeros(2 * n)
     x = x + 1e-3 * rng.normal(size=2 * n) * np.repeat(~np.isin(np.arange(n), model.mesh.boundary_nodes), 2)
-    return {"model": model, "w": state.w, "x": x.reshape(-1, 2), "rho": rho, "params": params,
+    return {"model": model, "w": state.w, "x": x.reshape(-1, 2), "rho": rho, "params": stage.params,
             "rng": rng}
 
 
@@ -174,13 +174,13 @@ def test_a_design_problems_point_refreshes_with_the_design_and_the_stage(point):
     f = problem.evaluate(gamma)[0]
     assert problem.evaluate(gamma)[0] == f and problem.evaluations == 1     # the kept point
     other = np.clip(gamma + 0.05, 0, 1)
-    for make in (lambda: (other, problem.params),
-                 lambda: (gamma, dataclasses.replace(problem.params, penalty=2.0)),
-                 lambda: (gamma, dataclasses.replace(problem.params, beta=4.0))):
-        g, params = make()
-        problem.set_stage(params)
+    for make in (lambda: (other, problem.stage),
+                 lambda: (gamma, problem.stage.with_params(penalty=2.0)),
+                 lambda: (gamma, problem.stage.with_params(beta=4.0))):
+        g, stage = make()
+        problem.set_stage(stage)
         fresh = tofsi.Problem(scene)
-        fresh.set_stage(params)
+        fresh.set_stage(stage)
         assert problem.evaluate(g)[0] == pytest.approx(fresh.evaluate(g)[0], rel=1e-9)
-        problem.set_stage(Continuation(**{**dataclasses.asdict(problem.params)}))
+        problem.set_stage(Stage(Continuation(**dataclasses.asdict(problem.params))))   # equal, not the same
     assert problem.evaluations == 4

@@ -32,7 +32,7 @@ def test_the_inflow_ramp_carries_a_solve_the_full_load_cannot_reach():
     state = model.solve(model.densities())
     ramp = state.reports["load_ramp"]
     assert ramp["steps"][-1] == 1.0 and len(ramp["steps"]) >= 3
-    assert state.params == model.params and state.params.load == 1.0
+    assert state.params == model.stage.params and state.params.load == 1.0
     assert np.abs(state.u).max() > 0.4                        # large motion: 40 % of the channel
     system, tol = model.system, model.scene.coupled.tol
     for block in system.blocks:                                # the full problem's residuals
@@ -152,11 +152,12 @@ def test_a_failing_first_design_of_a_later_stage_is_bridged_halfway_and_the_run_
 
 
 def test_bridge_takes_every_continued_parameter_halfway():
-    from tofsi.core.blocks import Continuation
+    from tofsi.core.blocks import Continuation, Stage
     from tofsi.optimization.stages import bridge
-    a, b = Continuation(beta=4.0, penalty=3.0, brinkman_q=0.0), Continuation(beta=16.0, penalty=3.0,
-                                                                            brinkman_q=0.1, coupling="two-way")
-    assert bridge(a, b) == Continuation(beta=8.0, penalty=3.0, brinkman_q=0.05, coupling="two-way")
+    a = Stage(Continuation(beta=4.0, penalty=3.0, brinkman_q=0.0), material="linear")
+    b = Stage(Continuation(beta=16.0, penalty=3.0, brinkman_q=0.1), coupling="two-way", material="neo-hookean")
+    assert bridge(a, b) == Stage(Continuation(beta=8.0, penalty=3.0, brinkman_q=0.05), coupling="two-way",
+                                 material="neo-hookean")       # the numbers halfway, the structure the target's
     assert bridge(None, b) is None and bridge(b, b) is None
 
 
@@ -230,7 +231,7 @@ def test_a_stage_of_the_structure_model_schedule_solves_as_that_model():
         alone = tofsi.Problem(load("beam_in_channel_optimization", *base, f"structure.model={model}"))
         for p in (staged, alone):
             p.set_stage(continuation(p.scene, stage))
-        assert staged.model.structure.nonlinear(staged.params) == (model == "neo-hookean")
+        assert staged.model.system_for(staged.stage).by_name["u"].material.nonlinear == (model == "neo-hookean")
         a, b = staged.evaluate(gamma), alone.evaluate(gamma)
         assert a[0] == pytest.approx(b[0], rel=1e-10)
         np.testing.assert_allclose(a[1], b[1], rtol=1e-8, atol=1e-10 * np.abs(b[1]).max())

@@ -220,7 +220,7 @@ def test_the_amg_path_gives_the_direct_answer(name):
     direct = run_move(scene)[1].displacement
     result = run_move(load("foil_in_channel", f"mover.name={name}", "deformation.mode=rotation",
                            "deformation.rotation_deg=10", f"mover.{name}.linear_tol=1e-12",
-                           f"mover.{name}.linear_solver=amg"))[1]
+                           f"mover.{name}.tangent_solver=amg"))[1]
     np.testing.assert_allclose(result.displacement, direct, atol=1e-8 * np.abs(direct).max())
     report = result.report
     if report.linear_solves > 1:        # increments and Newton steps recycle AMG hierarchies

@@ -1,6 +1,5 @@
 """The optimization driver: decreases, satisfies, writes where asked, and resumes exactly."""
 
-import dataclasses
 import json
 import os
 import subprocess
@@ -39,7 +38,7 @@ def test_a_few_iterations_decrease_the_objective_and_keep_the_volume(tmp_path):
 def test_a_design_past_the_volume_bound_is_shifted_onto_it_without_a_solve(scene, constraint):
     problem = tofsi.Problem(tofsi.load_scene(scene_path(scene), ["mesh.h_min=0.1", "mesh.h_max=0.1"]
                                              if scene != "double_pipe" else []))
-    problem.set_stage(dataclasses.replace(problem.params, beta=8.0))
+    problem.set_stage(problem.stage.with_params(beta=8.0))
     bound = problem.scene.design.volume_fraction
     rng = np.random.default_rng(3)
     over = np.clip((0.55 if constraint == "solid" else 0.3) + 0.2 * rng.uniform(-1, 1, problem.n_design), 0, 1)

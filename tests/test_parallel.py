@@ -94,9 +94,9 @@ def test_flow_adjoint_by_slabs_equals_the_serial_adjoint(tmp_path, objective):
     got = np.load(out)
     from adjoint import Adjoint
     problem = tofsi.Problem(tofsi.load_scene(PIPE_BEND, sets))
-    model, params = problem.model, problem.params
-    state = model.solve(got["rho"], None, params=params)
-    df = Adjoint(model.system_for(params), state).gradient(problem.objective.partials(model, state))
+    model, stage = problem.model, problem.stage
+    state = model.solve(got["rho"], None, stage=stage)
+    df = Adjoint(model.system_for(stage), state).gradient(problem.objective.partials(model, state))
     f = problem.objective.value(model, state)
     assert abs(float(got["f"]) - f) <= 1e-8 * abs(f)
     assert np.linalg.norm(got["df"] - df) <= 1e-8 * np.linalg.norm(df)

@@ -128,7 +128,7 @@ def test_every_field_writes_its_figures_arrays_and_pictures(cli, tmp_path):
                              ["mesh.h_min=0.1", "mesh.h_max=0.1", "effects.coupling=two-way", "mover.name=yeoh"])
     model = tofsi.Problem(scene).model
     assert [f.name for f in model.fields] == list(FIELDS.names())       # every registered field
-    state = model.solve(model.densities(), params=model.params)
+    state = model.solve(model.densities(), stage=model.stage)
     vtu = meshio.read(tmp_path / "s" / "solution.vtu")
     settings = json.loads((tmp_path / "s" / "solve.json").read_text())["settings"]
     for field in model.fields:
@@ -204,7 +204,7 @@ class TracerField(Field):
     def build(self, model):
         return TracerBlock(model.mesh, model.flow, model.scene.tracer.gain)
 
-    def block(self, model, two_way):
+    def block(self, model, stage):
         return model.physics["c"]
 
     def figures(self, model, state):

@@ -70,9 +70,9 @@ def test_two_models_with_different_solver_tables_do_not_interfere(monkeypatch):
     for name, model in (("a", a), ("b", b), ("a again", a)):
         system_for = model.system_for
 
-        def spy(params, system_for=system_for, name=name):
+        def spy(stage, system_for=system_for, name=name):
             seen[name] = openblas_threads()
-            return system_for(params)
+            return system_for(stage)
         monkeypatch.setattr(model, "system_for", spy)
         state = model.solve(model.densities())
         assert state.u is not None

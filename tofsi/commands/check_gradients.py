@@ -75,7 +75,7 @@ def run(scene, args, ctx) -> dict:
     problem = Problem(scene)
     rng = np.random.default_rng(args.seed)
     stage = checked_stage(scene, getattr(args, "stage", None))
-    params = continuation(scene, stage)
+    record = continuation(scene, stage)
     if scene.design.initial and not uniform(scene.design.initial):      # the user's design file
         gamma, design = problem.initial_design(), scene.design.initial
     elif stage > 0 and stage in two_way_stages(scene):
@@ -86,16 +86,16 @@ def run(scene, args, ctx) -> dict:
         design = f"reached by stages 0-{stage - 1}, perturbed by {PERTURBATION:g}"
     else:
         gamma, design = rng.uniform(0.1, 0.9, problem.n_design), "random in [0.1, 0.9]"
-    problem.set_stage(params)
-    coupling = params.coupling or scene.effects.coupling
+    problem.set_stage(record)
+    coupling = record.coupling or scene.effects.coupling
     ctx.say(f"{scene.name}: {problem.n_design} design variables; {problem.model.mesh.n_elements} elements; "
-            f"stage {stage} ({coupling}, beta {params.beta:g}); design {design}; seed {args.seed}; "
+            f"stage {stage} ({coupling}, beta {record.params.beta:g}); design {design}; seed {args.seed}; "
             f"coupled solves to {scene.coupled.tol:g}")
     with ctx.step("solving the design"):
         state = problem.solve(gamma)
     with ctx.step("checking every Jacobian block and the total derivatives"):
-        rows = (check_blocks(problem.model.system_for(state.params), state, args.seed)
-                + check_totals(problem, gamma, args.seed, eps0=taylor_step(params.beta)))
+        rows = (check_blocks(problem.model.system_for(state.stage), state, args.seed)
+                + check_totals(problem, gamma, args.seed, eps0=taylor_step(record.params.beta)))
     ctx.say(f"{'check':28s} {'Taylor rate':>11s} {'CD rel. error':>14s}  result")
     for r in rows:
         rate = "linear" if r["linear"] else f"{r['min_rate']:.3f}"

@@ -49,8 +49,8 @@ class Pictures:
                       for name, values in field.point_data(p.model, state).items()}
         speed = np.linalg.norm(point_data["velocity"], axis=1) if "velocity" in point_data else None
         name = f"design_{tag}"
-        c = p.params                                      # the stage this state was solved in
-        stage = f"beta {c.beta:g}, penalty {c.penalty:g}" + (f", {c.coupling}" if c.coupling else "")
+        c, coupling = p.params, p.stage.coupling          # the stage this state was solved in
+        stage = f"beta {c.beta:g}, penalty {c.penalty:g}" + (f", {coupling}" if coupling else "")
         when = "final design" if iteration == "final" else f"design at iteration {iteration}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
                     title=f"{p.scene.name}: {when} ({stage})", outlines=region_outlines(mesh.quads, mesh.region))

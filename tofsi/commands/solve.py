@@ -78,8 +78,8 @@ def design_densities(scene, args):
     d = scene.design
     stage = stage_index(scene, stage_arg)
     problem = Problem(scene)                         # reads and checks design.initial
-    params = continuation(scene, stage)
-    problem.set_stage(params)
+    problem.set_stage(continuation(scene, stage))
+    params = problem.params
     gamma = problem.initial_design()
     about = {"design": d.initial or "uniform", "stage": stage, "beta": params.beta,
              "penalty": params.penalty, "brinkman_q": params.brinkman_q}
@@ -95,7 +95,7 @@ def run(scene, args, ctx) -> dict:
         ctx.say(f"design: {about['design']} through the filter (radius {scene.design.filter_radius:g} m) "
                 f"and the projection of stage {about['stage']} (beta {about['beta']:g})")
     with ctx.step(f"solving {fields} on {model.mesh.n_elements} quads"):
-        state = model.solve(rho, params=None if problem is None else problem.params)
+        state = model.solve(rho, stage=None if problem is None else problem.stage)
     hint = ("; for a designed structure: --design FILE (the design.npy of tofsi optimize) with --stage last"
             + ("" if args.allow_unphysical else f"; exit status {UNPHYSICAL} (--allow-unphysical accepts "
                                                  "these figures)"))

@@ -36,7 +36,7 @@ record; no physics object is ever changed to switch them.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping
 
 import numpy as np
@@ -47,29 +47,44 @@ Fields = Mapping[str, np.ndarray]
 
 @dataclass(frozen=True)
 class Continuation:
-    """Continuation parameters of one solve.
+    """Continuation parameters of one solve: the numbers a residual reads.
 
     penalty : SIMP exponent ``p`` of ``E(rho) = Emin + rho^p (E0 - Emin)``
     brinkman_q : convexity ``q`` of the Brinkman interpolation ``alpha(rho)``
     beta : projection sharpness of the design map (recorded with the state)
     load_exponent : weight ``rho^k`` of the solid phase in the fluid load
-    coupling : ``"one-way"`` to solve a two-way problem one-way (a continuation
-        stage); ``""``: as the problem is
     load : the fraction of the flow's prescribed boundary velocities (the inflow) the
         solve applies: 1 is the problem; below 1, a step of the load continuation that
         carries a coupled solve to large motion (:mod:`tofsi.coupling.load_ramp`)
-    structure_model : ``"linear"`` or ``"neo-hookean"`` for this stage (a design schedule:
-        small strain while the design is gray, finite strain once the topology exists);
-        ``""``: the structure's own ``structure.model``
     """
 
     penalty: float = 3.0
     brinkman_q: float = 0.1
     beta: float = 0.0
     load_exponent: float = 1.0
-    coupling: str = ""
     load: float = 1.0
-    structure_model: str = ""
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A continuation stage: the numbers its residuals read and its structure, which the model
+    reads to choose the blocks (residuals never see it).
+
+    params : the :class:`Continuation` numbers of the stage's solves
+    coupling : ``"one-way"`` to solve a two-way problem one-way (a stage of a design schedule),
+        ``"two-way"``, or ``""``: as the problem is
+    material : the structure's material this stage (a registry name, e.g. ``"linear"`` while
+        the design is gray, ``"neo-hookean"`` once the topology exists); ``""``: the scene's
+        ``structure.model``
+    """
+
+    params: Continuation = field(default_factory=Continuation)
+    coupling: str = ""
+    material: str = ""
+
+    def with_params(self, **numbers) -> "Stage":
+        """The same stage with some numbers replaced (``stage.with_params(beta=16.0)``)."""
+        return replace(self, params=replace(self.params, **numbers))
 
 
 class Linearization(ABC):
@@ -232,6 +247,7 @@ class State:
     reports: dict = field(default_factory=dict)
     linearizations: dict = field(default_factory=dict)
     coupled: dict = field(default_factory=dict)
+    stage: Stage = field(default_factory=Stage)     # the stage the model solved it at (its blocks)
 
     @property
     def w(self) -> np.ndarray | None:
@@ -255,4 +271,4 @@ class State:
 
     def data(self) -> "State":
         """The same state without linearizations (no factorizations held: for records)."""
-        return State(self.rho, dict(self.fields), self.params, self.converged, self.reports)
+        return State(self.rho, dict(self.fields), self.params, self.converged, self.reports, stage=self.stage)

@@ -21,6 +21,7 @@ import dataclasses
 import math
 import types
 import typing
+import warnings
 from typing import Any
 
 from tofsi.core.errors import InputError
@@ -122,9 +123,14 @@ def coerce(tp: Any, value: Any, key: str, meta: dict) -> Any:
 
 
 def build(cls: type, raw: Any, path: str = ""):
-    """Validate a raw table and build the frozen record ``cls`` from it."""
+    """Validate a raw table and build the frozen record ``cls`` from it.
+
+    A record may rename a key: its class attribute ``renamed_keys`` (``{old: new}``) accepts
+    the old key as the new one with a one-line :class:`FutureWarning` (both with different
+    values: an input error)."""
     if not isinstance(raw, dict):
         raise InputError(path, raw, "expected a table")
+    raw = renamed(cls, raw, path)
     hints = typing.get_type_hints(cls)
     known = [f for f in dataclasses.fields(cls) if f.init]
     names = {f.name for f in known}
@@ -142,6 +148,21 @@ def build(cls: type, raw: Any, path: str = ""):
         return cls(**kwargs)
     except InputError as err:
         raise err.under(path) from None
+
+
+def renamed(cls: type, raw: dict, path: str) -> dict:
+    """``raw`` with the record's old key names (``cls.renamed_keys``) moved to the new ones."""
+    raw = dict(raw)
+    for old, new in getattr(cls, "renamed_keys", {}).items():      # a record without renamed keys: {}
+        if old not in raw:
+            continue
+        value = raw.pop(old)
+        if new in raw and raw[new] != value:
+            raise InputError(join(path, old), value, f"conflicts with {join(path, new)} = {raw[new]!r}: "
+                             f"{join(path, old)} is its old name; set {join(path, new)} only")
+        raw[new] = value
+        warnings.warn(f"{join(path, old)} is an old name: write {join(path, new)}", FutureWarning, stacklevel=3)
+    return raw
 
 
 def _allowed(tp, meta: dict) -> str:

@@ -13,7 +13,7 @@ The registries themselves live here, on the core floor, so that a lower
 floor (the scene's records and loading) can name a registry's entries
 without importing the modules that fill them. Each registry knows the
 module of its built-in entries, its *home* (:mod:`tofsi.objectives`,
-:mod:`tofsi.fields`, :mod:`tofsi.scene.tables`), by name only, and imports it
+:mod:`tofsi.fields`, :mod:`tofsi.scene.tables`, :mod:`tofsi.physics.materials`), by name only, and imports it
 on first use, as entry points are loaded: whoever asks first sees every
 entry, and nothing below the home imports it. Entries of your own are
 registered with :meth:`Registry.register` (in a test, a script or a plugin).
@@ -104,4 +104,8 @@ FIELDS: Registry = Registry("field", "effects", home="tofsi.fields")
 """Fields of the coupled problem (:class:`tofsi.fields.base.Field` entries), in dependency order."""
 
 SCENE_TABLES: Registry = Registry("scene table", "scene", home="tofsi.scene.tables")
-"""The tables of a scene file (:class:`tofsi.scene.tables.SceneTable` entries), in file order."""
+"""The scene's own tables (:class:`tofsi.scene.tables.SceneTable` entries), in file order; the
+fields' tables are the fields' (:attr:`tofsi.fields.base.Field.tables`)."""
+
+MATERIALS: Registry = Registry("material", "structure.model", home="tofsi.physics.materials")
+"""The structure's materials (:class:`tofsi.physics.materials.Material` classes)."""

@@ -18,7 +18,7 @@ components, in topological order, are solved one after the other:
     block's force scale. Each Newton step is solved inexactly, to the
     Eisenstat-Walker relative tolerance (:func:`tofsi.core.iteration.forcing_term`;
     convergence is judged on the true residual), by GMRES preconditioned with
-    block Gauss-Seidel over the fields' own factorizations (``linear_solver =
+    block Gauss-Seidel over the fields' own factorizations (``jacobian_solver =
     "block"``, :class:`~tofsi.linalg.BlockGaussSeidel`; the whole Jacobian's LU
     when GMRES fails) or by the whole Jacobian's LU (``"direct"``), either kept
     for the later iterates and the adjoint. With ``quasi_newton`` the couplings a block marks as
@@ -56,7 +56,7 @@ EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exact
 class CouplingSettings:
     """How cycles are solved: ``method`` partitioned or monolithic, tolerance, iterations,
     the first relaxation factor (partitioned), the relaxed field, and (monolithic) whether
-    the shape couplings are kept (``quasi_newton``) and the Newton's ``linear_solver``."""
+    the shape couplings are kept (``quasi_newton``) and the Newton's ``jacobian_solver``."""
 
     method: str = "partitioned"
     tol: float = 1e-9
@@ -64,7 +64,7 @@ class CouplingSettings:
     relaxation: float = 0.5
     relax: str | None = None
     quasi_newton: bool = True
-    linear_solver: str = "block"
+    jacobian_solver: str = "block"
 
 
 class CoupledLinearization:
@@ -205,11 +205,11 @@ class BlockSystem:
 
     def linear_solver(self, comp, kind: str | None = None) -> RecyclingSolver:
         """The Newton's linear solver of the cycle ``comp`` (``kind``: else the settings'
-        ``linear_solver``): ``block``, GMRES preconditioned by block Gauss-Seidel over the
+        ``jacobian_solver``): ``block``, GMRES preconditioned by block Gauss-Seidel over the
         fields' own factorizations (:class:`~tofsi.linalg.BlockGaussSeidel`), kept for the
         later iterates and the adjoint while it stays cheap; ``direct``, the LU of the whole
         Jacobian, whose factors precondition GMRES for the later iterates and the adjoint."""
-        kind = kind or self.settings.linear_solver
+        kind = kind or self.settings.jacobian_solver
         direct = self.linear_algebra.direct
         if kind == "direct":
             perm = self.ordering(comp)

@@ -13,9 +13,11 @@ monolithic Newton on
       | D_u  D_x   0  |
       |  0   F_x  F_w |
 
-(see ``docs/design.md``). Continuation parameters are inputs of every solve
-(:func:`continuation`). The model owns its linear algebra (the ``[solver]``
-table: backend and threads): building a model changes nothing process-wide.
+(see ``docs/design.md``). A continuation stage (:func:`continuation`) is an input
+of every solve: the model reads its structure -- the coupling, the structure's
+material -- to choose the block system, whose residuals read its numbers. The
+model owns its linear algebra (the ``[solver]`` table: backend and threads):
+building a model changes nothing process-wide.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import time
 import numpy as np
 
 from tofsi.coupling.block_system import BlockSystem, CouplingSettings
-from tofsi.core.blocks import Continuation, State
+from tofsi.core.blocks import Continuation, Stage, State
 from tofsi.mesh.channel import build_mesh
 from tofsi.mesh import quality
 from tofsi.core.errors import InputError, NumericalError
@@ -35,22 +37,22 @@ from tofsi.coupling.load_ramp import ramped
 from tofsi.mesh.structured import DESIGN, SOLID
 from tofsi.core.registry import FIELDS
 
-__all__ = ["CoupledModel", "State", "continuation"]
+__all__ = ["CoupledModel", "Stage", "State", "continuation"]
 
 
-def continuation(scene, stage: int = 0) -> Continuation:
-    """The continuation parameters of a scene's optimization stage (stage 0: what
-    ``tofsi solve`` uses). Each schedule keeps its last value beyond its end."""
+def continuation(scene, stage: int = 0) -> Stage:
+    """Continuation stage ``stage`` of a scene's optimization (stage 0: what ``tofsi solve``
+    uses): its numbers and its structure. Each schedule keeps its last value beyond its end."""
     d = scene.design
 
     def pick(schedule, default):
         return schedule[min(stage, len(schedule) - 1)] if schedule else default
     defaults = Continuation()
-    return Continuation(penalty=float(pick(d.penalty, defaults.penalty)),
-                        brinkman_q=float(pick(d.brinkman_q, defaults.brinkman_q)),
-                        beta=float(pick(d.beta, defaults.beta)),
-                        load_exponent=scene.structure.load_exponent,
-                        coupling=pick(d.coupling, ""), structure_model=pick(d.structure_model, ""))
+    params = Continuation(penalty=float(pick(d.penalty, defaults.penalty)),
+                          brinkman_q=float(pick(d.brinkman_q, defaults.brinkman_q)),
+                          beta=float(pick(d.beta, defaults.beta)),
+                          load_exponent=scene.structure.load_exponent)
+    return Stage(params, coupling=pick(d.coupling, ""), material=pick(d.structure_model, ""))
 
 
 def two_way_stages(scene) -> list[int]:
@@ -67,7 +69,9 @@ class CoupledModel:
 
     fields : the active :class:`~tofsi.fields.base.Field` entries, in dependency order;
     physics : their physics objects by field name (``model.flow``, ``model.structure``
-    and ``model.motion`` name the built-in ones, None when absent).
+    and ``model.motion`` name the built-in ones, None when absent);
+    stage : the scene's first continuation stage (what ``tofsi solve`` uses);
+    system : its block system (:meth:`system_for` gives any stage's).
     """
 
     def __init__(self, scene, mesh=None):
@@ -81,15 +85,11 @@ class CoupledModel:
         self.force = fluid_force(self)
         self.two_way = "x" in self.physics
         c = scene.coupled
-        settings = CouplingSettings(c.method, c.tol, c.max_iter, c.relaxation, relax="u",
-                                    quasi_newton=c.quasi_newton, linear_solver=c.linear_solver)
-        self.system = self._system(settings, self.two_way)
-        self.one_way_system = self._system(settings, False) if self.two_way else self.system
-        self.params = continuation(scene)
-
-    def _system(self, settings: CouplingSettings, two_way: bool) -> BlockSystem:
-        blocks = [field.block(self, two_way) for field in self.fields]
-        return BlockSystem([b for b in blocks if b is not None], settings, self.linear_algebra)
+        self.settings = CouplingSettings(c.method, c.tol, c.max_iter, c.relaxation, relax="u",
+                                         quasi_newton=c.quasi_newton, jacobian_solver=c.jacobian_solver)
+        self.systems: dict = {}
+        self.stage = continuation(scene)
+        self.system = self.system_for(self.stage)
 
     @property
     def flow(self):
@@ -117,27 +117,43 @@ class CoupledModel:
         return rho
 
     # ---- forward solve -------------------------------------------------------------------
-    def system_for(self, params: Continuation) -> BlockSystem:
-        """The block system a solve at ``params`` uses (a two-way problem's one-way stage: no mesh)."""
-        return self.one_way_system if params.coupling == "one-way" else self.system
+    def blocks_of(self, stage: Stage) -> Stage:
+        """The structure a stage asks of this model: its coupling (``"two-way"`` only where the
+        model has a moving mesh and the stage does not ask for one-way) and the structure's
+        material (the scene's ``structure.model`` unless the stage names one); no numbers."""
+        two_way = self.two_way and stage.coupling != "one-way"
+        return Stage(coupling="two-way" if two_way else "one-way",
+                     material=stage.material or self.scene.structure.model)
+
+    def system_for(self, stage: Stage) -> BlockSystem:
+        """The block system of a stage (a two-way problem's one-way stage: no mesh; the
+        structure's block of the stage's material), built once per structure."""
+        key = self.blocks_of(stage)
+        if key not in self.systems:
+            blocks = [field.block(self, key) for field in self.fields]
+            self.systems[key] = BlockSystem([b for b in blocks if b is not None], self.settings,
+                                            self.linear_algebra)
+        return self.systems[key]
 
     def solve(self, rho: np.ndarray, guess: State | None = None, progress=None,
-              params: Continuation | None = None) -> State:
-        """The coupled state for densities ``rho`` (E,) at continuation ``params`` (default:
-        the scene's first stage); ``guess`` warm-starts the solvers. When a two-way solve fails at
-        the full inflow, the inflow is ramped from rest (``coupled.load_ramp``, :mod:`tofsi.coupling.load_ramp`;
-        one-way, the flow continues in its Reynolds number itself)."""
+              stage: Stage | None = None) -> State:
+        """The coupled state for densities ``rho`` (E,) at continuation ``stage`` (default: the
+        scene's first); ``guess`` warm-starts the solvers. When a two-way solve fails at the
+        full inflow, the inflow is ramped from rest (``coupled.load_ramp``,
+        :mod:`tofsi.coupling.load_ramp`; one-way, the flow continues in its Reynolds number itself)."""
         t0 = time.perf_counter()
         if self.flow is None:
             raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow")
-        params = self.params if params is None else params
+        stage = self.stage if stage is None else stage
         c = self.scene.coupled
-
-        def at(p: Continuation, start: State | None) -> State:
-            return self.unfolded(self.system_for(p).solve(rho, p, start, progress))
-        coupled = bool(self.system_for(params).cycles)    # one-way: the flow's Reynolds continuation
         with self.linear_algebra.blas():
-            state = ramped(at, params, guess, c.min_load_step) if c.load_ramp and coupled else at(params, guess)
+            system = self.system_for(stage)
+
+            def at(p: Continuation, start: State | None) -> State:
+                return self.unfolded(system.solve(rho, p, start, progress))
+            state = (ramped(at, stage.params, guess, c.min_load_step) if c.load_ramp and system.cycles
+                     else at(stage.params, guess))     # one-way: the flow's Reynolds continuation instead
+        state.stage = stage
         state.reports["wall_time_s"] = time.perf_counter() - t0
         return state
 

@@ -13,9 +13,12 @@ its settings record and scene table, its block and linearization (the
 * ``memory(grid, scene)`` -- its unknowns and their LU fill for the memory guard
   (:mod:`tofsi.runs.memory`), from the mesh's size and the scene's settings alone;
 * ``build(model)`` -- its physics object (the physics is imported there, so loading a
-  scene imports no physics); ``block(model, two_way)`` -- its
-  :class:`~tofsi.core.blocks.FieldBlock` (the coupled model orders and solves the
-  blocks; the checkpoint, the adjoint and ``check-gradients`` follow);
+  scene imports no physics); ``block(model, stage)`` -- its
+  :class:`~tofsi.core.blocks.FieldBlock` in a stage's block system (``stage``: the
+  :class:`~tofsi.core.blocks.Stage` structure the system is for, ``coupling`` ``"two-way"``
+  or ``"one-way"`` and the structure's ``material``; None: no block there). The coupled
+  model orders and solves the blocks; the checkpoint, the adjoint and ``check-gradients``
+  follow;
 * ``check(model, state)`` -- why a solved state is no physical one (warnings; a
   state that is a failure raises);
 * ``figures(model, state)`` -- the numbers it reports (``solve.json``, result
@@ -121,7 +124,7 @@ class Field:
     def build(self, model):
         raise NotImplementedError
 
-    def block(self, model, two_way: bool) -> FieldBlock | None:
+    def block(self, model, stage) -> FieldBlock | None:
         raise NotImplementedError
 
     def check(self, model, state: State) -> list[str]:

@@ -261,17 +261,18 @@ class FlowEntry(Field):
         return scene.effects.fluid != "none" and command not in MOTION_ONLY
 
     def memory(self, grid, scene):
-        if scene.fluid.element == "q1q1":       # peaks of a solve at 4005 and 22 578 elements: 182 and
-            return Memory(3 * grid.nodes, "flow-q1q1", 1.0e3)       # 670 MB (estimated 1.34x, 1.04x)
-        return Memory(2 * grid.nodes9 + grid.nodes, "flow", 1.0e3)   # with the kernel in chunks (fitted)
+        from tofsi.physics.fluid_elements import ELEMENTS
+        element = ELEMENTS[scene.fluid.element]     # 1e3 bytes per element with the kernel in chunks (fitted;
+        return Memory(element.unknowns(grid), element.fill, 1.0e3)   # q1q1 peaks at 4005 and 22 578 elements:
+                                                                     # 182 and 670 MB, estimated 1.34x, 1.04x)
 
     def build(self, model):
         from tofsi.physics.flow import Flow
         return Flow(model.mesh, model.scene.fluid, stokes=model.scene.effects.fluid == "stokes",
                     linear_algebra=model.linear_algebra)
 
-    def block(self, model, two_way):
-        return FlowBlock(model.flow, moving_mesh=two_way)
+    def block(self, model, stage):
+        return FlowBlock(model.flow, moving_mesh=stage.coupling == "two-way")
 
     def figures(self, model, state):
         """Pressure drop, dissipation and, where there is a solid, drag and lift: the resultant
@@ -289,7 +290,7 @@ class FlowEntry(Field):
             return {}
         flow = model.flow
         v = state.w[:flow.n_velocity].reshape(-1, 2)
-        return {"velocity": on_q2_nodes(model.mesh, v) if flow.element.degree == 1 else v,
+        return {"velocity": on_q2_nodes(model.mesh, v) if flow.element.velocity_on_corners else v,
                 "pressure": on_q2_nodes(model.mesh, state.w[flow.n_velocity:])}
 
     def pictures(self, model, state):

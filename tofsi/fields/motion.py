@@ -25,7 +25,7 @@ from tofsi.core.config import build, coerce, documentation, option
 from tofsi.core.errors import InputError
 from tofsi.core.registry import FIELDS
 from tofsi.fields.base import MOTION_ONLY, Field, Memory, Picture, on_q2_nodes, state_points
-from tofsi.linalg import AMGSolver, RecyclingSolver, rigid_body_modes
+from tofsi.linalg import RecyclingSolver
 from tofsi.mesh import quality
 from tofsi.scene.settings import MAX_STIFFENING
 from tofsi.scene.tables import SceneTable, mover_name, plain
@@ -148,13 +148,10 @@ class MotionLinearization(Linearization):
         return self._solver
 
     def _solver_for(self):
-        if self._solver is None:
-            motion = self.motion
-            if motion.linear_algebra.iterative:           # AMG-GMRES (the blended tangent is not symmetric)
-                modes = rigid_body_modes(motion.base.points)
-                self._solver = RecyclingSolver(lambda A: AMGSolver(A, near_null=modes, symmetric=False))
-            else:
-                self._solver = RecyclingSolver(lambda A: motion.linear_algebra.direct(A, perm=motion.base.ordering))
+        if self._solver is None:           # AMG-GMRES on the iterative path (the blended tangent is not symmetric)
+            la, base = self.motion.linear_algebra, self.motion.base
+            self._solver = RecyclingSolver(
+                lambda A: la.elasticity(A, base.points, lambda: base.ordering, symmetric=False))
         return self._solver
 
     def solve(self, b):
@@ -246,8 +243,8 @@ class MotionEntry(Field):
         from tofsi.physics.mesh_motion import MeshMotion
         return MeshMotion(model.mesh, model.scene, linear_algebra=model.linear_algebra)
 
-    def block(self, model, two_way):
-        return MotionBlock(model.motion) if two_way else None
+    def block(self, model, stage):
+        return MotionBlock(model.motion) if stage.coupling == "two-way" else None
 
     def figures(self, model, state):
         """The moved fluid mesh's quality: smallest skewness, area change range, inverted quads."""

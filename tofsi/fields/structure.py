@@ -18,9 +18,8 @@ import numpy as np
 from tofsi.core.blocks import FieldBlock
 from tofsi.core.config import option
 from tofsi.core.errors import InputError
-from tofsi.core.registry import FIELDS
+from tofsi.core.registry import FIELDS, MATERIALS
 from tofsi.fields.base import MOTION_ONLY, EliminatedLinearization, Field, Memory, Picture, moved_mesh, on_q2_nodes
-from tofsi.linalg import RecyclingSolver
 from tofsi.mesh.structured import SIDES
 from tofsi.scene.tables import SceneTable
 
@@ -49,8 +48,9 @@ class StructureSettings:
                                   doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
                                       "et al.; the SIMP exponent keeps gray elements' displacement "
                                       "bounded)")
-    model: str = option("linear", choices=("linear", "neo-hookean"),
-                        doc="linear: small-strain elasticity; neo-hookean: compressible neo-Hookean at "
+    model: str = option("linear", choices=MATERIALS.names,
+                        doc="the material, an entry of the materials registry (tofsi.physics.materials) -- "
+                            "linear: small-strain elasticity; neo-hookean: compressible neo-Hookean at "
                             "finite strain (plane strain, total Lagrangian), solved by Newton with load "
                             "steps; the fluid load acts on the moved configuration")
     interpolation: str = option("energy", choices=("energy", "simp"),
@@ -79,12 +79,12 @@ STRUCTURE_TABLE = SceneTable("structure", StructureSettings)
 
 # ---- the block -------------------------------------------------------------------------------
 class StructureLinearization(EliminatedLinearization):
-    """Small strain: ``S_u = K_s(rho)`` and its LU. Finite strain: ``S_u`` the tangent at ``u``,
-    solved by the Newton's recycling solver (its last factorization preconditions GMRES)."""
+    """``S_u``, the tangent of the block's material at ``u`` (small strain: ``K_s(rho)``), solved
+    by the material's solver: the LU of ``K_s`` (reused by later sweeps at the same densities), or
+    at finite strain the Newton's recycling solver (its last factorization preconditions GMRES)."""
 
-    def __init__(self, block, fields, rho, params, factor=None, solver=None):
+    def __init__(self, block, fields, rho, params, solver=None):
         super().__init__(block, fields, rho, params)
-        self._factor = factor
         self._solver = solver
         self._residual = None
 
@@ -103,35 +103,20 @@ class StructureLinearization(EliminatedLinearization):
         return self._residual
 
     def matrix(self):
-        if self.st.nonlinear(self.params):
-            return self.kept("S_u", lambda: self.st.stiffness(self.rho, self.params, self.value))
-        return self.st.stiffness(self.rho, self.params)
-
-    def factorization(self):
-        """The LU of ``K_s(rho)`` at this point's SIMP exponent (small strain)."""
-        if self._factor is None:
-            self._factor = self.st.factorize(self.rho, self.params)
-        return self._factor
+        return self.kept("S_u", lambda: self.st.stiffness(self.rho, self.params, self.value, self.block.material))
 
     @property
     def solver(self):
-        """Finite strain: the recycling solver of the tangent (None before first use)."""
-        return self._solver
-
-    def _solver_for(self):
+        """The material's solver of this point's tangent (made on first use)."""
         if self._solver is None:
-            self._solver = RecyclingSolver(self.st.direct)
+            self._solver = self.block.material.solver(self.rho, self.st.simp(self.params))
         return self._solver
 
     def factor_solve(self, b):
-        if self.st.nonlinear(self.params):
-            return self._solver_for().solve(self.matrix(), b)
-        return self.factorization().solve(b)
+        return self.solver.solve(self.matrix, b)
 
     def factor_solve_transpose(self, b):
-        if self.st.nonlinear(self.params):
-            return self._solver_for().solve_transpose(self.matrix(), b)
-        return self.factorization().solve_transpose(b)
+        return self.solver.solve_transpose(self.matrix, b)
 
     def coupling(self, other):
         st, w = self.st, self.fields["w"]
@@ -142,8 +127,8 @@ class StructureLinearization(EliminatedLinearization):
         return None
 
     def density(self):
-        return self.kept("S_rho", lambda: self.st.bc.free_rows(
-            self.st.density_partial(self.value, self.fields["w"], self.X, self.rho, self.params)))
+        return self.kept("S_rho", lambda: self.st.bc.free_rows(self.st.density_partial(
+            self.value, self.fields["w"], self.X, self.rho, self.params, self.block.material)))
 
     def transpose_partials(self, lam):
         lam = self.block.homogenize(lam)
@@ -151,20 +136,19 @@ class StructureLinearization(EliminatedLinearization):
         bars = {"w": st.fluid_partial_transpose(lam, w, self.X, self.rho, self.params)}
         if "x" in self.block.inputs:
             bars["x"] = self.coupling("x").T @ lam
-        rho_bar = np.einsum("ea,ea->e", st.density_vectors(self.value, w, self.X, self.rho, self.params),
-                            lam[st.dofs])
-        return bars, rho_bar
+        vectors = st.density_vectors(self.value, w, self.X, self.rho, self.params, self.block.material)
+        return bars, np.einsum("ea,ea->e", vectors, lam[st.dofs])
 
 
 class StructureBlock(FieldBlock):
-    """The structure's displacement ``u``: SIMP plane-strain elasticity loaded by the flow
-    (at finite strain solved by Newton, whose report is the state's ``structure`` report)."""
+    """The structure's displacement ``u`` of one material: SIMP plane-strain elasticity loaded by
+    the flow (a nonlinear material solved by Newton, whose report is the state's ``structure``
+    report)."""
 
-    name, symbol, report_name = "u", "S", ""
+    name, symbol, report_name = "u", "S", "structure"
 
-    def __init__(self, structure: Structure, moving_mesh: bool = False):
-        self.structure = structure
-        self.report_name = "structure"          # a finite-strain solve's Newton report (small strain: none)
+    def __init__(self, structure: Structure, material, moving_mesh: bool = False):
+        self.structure, self.material = structure, material
         self.size = structure.size
         self.inputs = ("w", "x") if moving_mesh else ("w",)
         self.slow_couplings = ("x",) if moving_mesh else ()     # S_x: the load's shape derivative
@@ -178,7 +162,7 @@ class StructureBlock(FieldBlock):
 
     def residual(self, fields, rho, params):
         st, u = self.structure, fields["u"]
-        r = st.bc.homogenize(st.residual(u, fields["w"], moved_mesh(fields, self.inputs), rho, params))
+        r = st.bc.homogenize(st.residual(u, fields["w"], moved_mesh(fields, self.inputs), rho, params, self.material))
         r[self.fixed] = u[self.fixed]
         return r
 
@@ -186,21 +170,15 @@ class StructureBlock(FieldBlock):
         return StructureLinearization(self, fields, rho, params)
 
     def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
-        if self.structure.nonlinear(params):  # Newton from the guess (a nearby state), else load steps
-            recycled = previous.solver if isinstance(previous, StructureLinearization) else None
-            solution = self.structure.newton_solve(fields["w"], moved_mesh(fields, self.inputs), rho, params,
-                                                   guess=guess, solver=recycled)
-            lin = StructureLinearization(self, {**fields, "u": solution.u}, rho, params, solver=solution.solver)
-            return solution.u, lin, solution.report.as_dict()
-        factor = None
-        if (previous is not None and np.array_equal(previous.rho, rho) and previous.params.penalty == params.penalty
-                and not self.structure.nonlinear(previous.params)):
-            factor = previous.factorization()                     # K_s depends on (rho, p) only
-        values = dict(fields)
-        lin = StructureLinearization(self, values, rho, params, factor)
-        u = self.structure.solve(fields["w"], moved_mesh(fields, self.inputs), rho, params, lin.factorization())
-        lin.fields["u"] = u
-        return u, lin, None
+        """From the guess (a nearby state) where the material is nonlinear; the solver of an
+        earlier sweep (``previous``) where it still serves (the LU of the same ``K_s``, or the
+        Newton's recycled factorization)."""
+        st, simp = self.structure, self.structure.simp(params)
+        earlier = previous.solver if isinstance(previous, StructureLinearization) else None
+        solver = self.material.solver(rho, simp, earlier)
+        load = st.load(fields["w"], moved_mesh(fields, self.inputs), rho, params)
+        u, report = self.material.solve(load, rho, simp, guess=guess, solver=solver)
+        return u, StructureLinearization(self, {**fields, "u": u}, rho, params, solver), report
 
     def residual_scale(self, fields, rho, params, lin):
         load = self.structure.load(fields["w"], moved_mesh(fields, self.inputs), rho, params)
@@ -231,8 +209,9 @@ class StructureEntry(Field):
         from tofsi.physics.structure import Structure
         return Structure(model.mesh, model.scene.structure, model.flow, linear_algebra=model.linear_algebra)
 
-    def block(self, model, two_way):
-        return StructureBlock(model.structure, moving_mesh=two_way)
+    def block(self, model, stage):
+        structure = model.structure
+        return StructureBlock(structure, structure.material(stage.material), moving_mesh=stage.coupling == "two-way")
 
     def check(self, model, state):
         """A displacement beyond the channel: one-way, an answer but no physical state (a design
@@ -246,7 +225,7 @@ class StructureEntry(Field):
         beyond = structure.displacement_beyond_channel(state.u)
         if not beyond:
             return []
-        strain = "finite-strain" if structure.nonlinear(state.params) else "small-strain"
+        strain = "finite-strain" if structure.material(state.stage.material).nonlinear else "small-strain"
         return [beyond + f": the {strain} answer for a design far too soft for the flow, not a physical "
                 "state (optimize starts from it)"]
 

@@ -23,22 +23,5 @@ from tofsi.linalg.ordering import nested_dissection
 from tofsi.linalg.recycling import RecyclingSolver
 
 __all__ = ["AMGSolver", "BlockGaussSeidel", "DirectSolver", "LinearAlgebra", "RecyclingSolver", "available",
-           "get_backend", "make_solver",
-           "nested_dissection", "rigid_body_modes", "set_default"]
+           "get_backend", "nested_dissection", "rigid_body_modes", "set_default"]
 
-
-def make_solver(A, kind: str = "direct", coords=None, near_null=None, tol=1e-10,
-                perm=None, symmetric: bool = True, linear_algebra: LinearAlgebra | None = None):
-    """A reusable solver of kind ``direct`` (LU on the backend of ``linear_algebra``, else the
-    process default) or ``amg`` (SPD systems only).
-
-    perm : a precomputed fill-reducing permutation (else computed from ``coords``)
-    """
-    if kind == "direct":
-        if linear_algebra is not None:
-            return linear_algebra.direct(A, perm=perm if perm is not None or coords is None
-                                         else nested_dissection(coords))
-        return DirectSolver(A, coords=coords, perm=perm)
-    if kind == "amg":
-        return AMGSolver(A, near_null=near_null, tol=tol, symmetric=symmetric)
-    raise ValueError(f"unknown linear solver {kind!r}")

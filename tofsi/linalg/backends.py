@@ -96,11 +96,17 @@ def available() -> list[str]:
     return [name for name in AUTO_ORDER if unavailable(name) is None]
 
 
+def requested(name: str | None = None) -> str:
+    """The linear solver asked for (a value of ``solver.linear_solver``): ``TOFSI_LINEAR_SOLVER``
+    when the environment sets it (it wins over a scene, to run a benchmark or the tests on another
+    backend), else ``name``, else the process default. The one place the environment is read."""
+    return os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or name or _default["name"]
+
+
 def resolve(name: str | None = None) -> str:
-    """The backend a name stands for (``None``: ``TOFSI_LINEAR_SOLVER`` if set, else the
-    configured default; ``auto``: the fastest)."""
+    """The backend a name stands for (``None``: :func:`requested`; ``auto``: the fastest)."""
     if name is None:
-        name = os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or _default["name"]
+        name = requested()
     if name == "auto":
         return available()[0]
     if name == "iterative":                     # the iterative path: what stays direct uses SuperLU

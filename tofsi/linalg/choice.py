@@ -58,15 +58,38 @@ class LinearAlgebra:
         """From a ``[solver]`` table (:class:`tofsi.scene.settings.SolverSettings`): ``auto`` resolved
         to the fastest installed backend, an unavailable one refused (InputError naming why),
         ``threads = 0`` one per core; the environment's overrides applied."""
-        from tofsi.linalg.backends import resolve
-        name = os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or settings.linear_solver
+        from tofsi.linalg.backends import requested, resolve
+        name = requested(settings.linear_solver)
         return cls(resolve(name), solver_threads(settings.threads),
                    environment_int("TOFSI_BLAS_THREADS", settings.blas_threads), iterative=name == ITERATIVE)
+
+    @classmethod
+    def default(cls) -> "LinearAlgebra":
+        """The process default's direct backend (physics and movers built without a model)."""
+        from tofsi.linalg.backends import resolve
+        return cls(backend=resolve())
 
     def direct(self, A, perm=None):
         """A :class:`~tofsi.linalg.DirectSolver` of ``A`` on this backend."""
         from tofsi.linalg.direct import DirectSolver
         return DirectSolver(A, perm=perm, backend=self.backend, threads=self.threads)
+
+    def elasticity(self, A, points, perm=None, tol: float = 1e-10, symmetric: bool = True, amg: bool = False):
+        """A solver of an elasticity-like system ``A`` (two dofs per node at ``points`` (n, 2)): on
+        the iterative path, or when ``amg`` asks for it, smoothed-aggregation AMG with the
+        rigid-body modes as near-null space (CG, or GMRES where ``A`` is not ``symmetric``) to
+        ``tol``; else the LU on this backend with the ordering ``perm`` (or ``perm()``: an
+        ordering made only where an LU needs it)."""
+        if self.iterative or amg:
+            from tofsi.linalg.amg import AMGSolver, rigid_body_modes
+            return AMGSolver(A, near_null=rigid_body_modes(points), tol=tol, symmetric=symmetric)
+        return self.direct(A, perm=perm() if callable(perm) else perm)
+
+    def saddle_point(self, factorize, precondition):
+        """``A -> solver`` of a saddle-point sequence (the flow's Jacobians): ``factorize`` (its LU)
+        on a direct backend, ``precondition`` (its block preconditioner for FGMRES) on the
+        iterative path."""
+        return precondition if self.iterative else factorize
 
     @contextmanager
     def blas(self):

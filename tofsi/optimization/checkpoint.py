@@ -19,7 +19,7 @@ from dataclasses import asdict
 
 import numpy as np
 
-from tofsi.core.blocks import State
+from tofsi.core.blocks import Continuation, Stage, State
 from tofsi.runs.output import atomic_write, to_json
 from tofsi.optimization.resume import check_resume, identity, read_checkpoint
 
@@ -44,7 +44,7 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
     meta = {"scene": problem.scene.name, "stage": run.stage, "n_stage_evaluations": len(run.log),
             "scale": run.scale, "history": [asdict(h) for h in history], "stage_start": run.start.tolist(),
             "failures": failures, "fallbacks_at_start": run.fallbacks_at_start,
-            "params": record(run.params), "pending": [record(r) for r in run.pending],
+            "params": record(run.record), "pending": [record(r) for r in run.pending],
             "previous": record(run.previous),
             "identity": identity(problem.scene, problem.model.mesh, problem.n_design)}
 
@@ -54,9 +54,23 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
     atomic_write(path, write)
 
 
-def record(params) -> dict | None:
-    """A stage record (:class:`tofsi.core.blocks.Continuation`) as JSON (None stays None)."""
-    return None if params is None else asdict(params)
+def record(stage: Stage | None) -> dict | None:
+    """A stage record (:class:`tofsi.core.blocks.Stage`) as JSON: its numbers and its structure,
+    one flat table (None stays None)."""
+    return None if stage is None else {**asdict(stage.params), "coupling": stage.coupling,
+                                       "material": stage.material}
+
+
+def stage_record(table: dict | None) -> Stage | None:
+    """The stage of a :func:`record` (and of a checkpoint written before the numbers and the
+    structure were two records: its ``structure_model`` is the material)."""
+    if table is None:
+        return None
+    table = dict(table)
+    structure = {"coupling": table.pop("coupling", ""),
+                 "material": table.pop("material", "") or table.pop("structure_model", "")}
+    table.pop("structure_model", None)
+    return Stage(Continuation(**table), **structure)
 
 
 def read_stage(path, problem) -> tuple[dict, list[dict], State]:

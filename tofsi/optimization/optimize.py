@@ -58,8 +58,8 @@ import nlopt
 import numpy as np
 
 from tofsi.mesh import quality
-from tofsi.core.blocks import Continuation
-from tofsi.optimization.checkpoint import read_stage, write_checkpoint
+from tofsi.core.blocks import Stage
+from tofsi.optimization.checkpoint import read_stage, stage_record, write_checkpoint
 from tofsi.coupling.coupled import continuation
 from tofsi.core.errors import InputError, NumericalError
 from tofsi.optimization.nlopt_stage import INITIAL_STEP, run_stage, settled
@@ -177,12 +177,12 @@ class Optimizer:
         run = self.run_stage
         if run.scale is None:                   # each stage scales by its first objective value
             run.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
-        params = self.problem.params            # the stage's record, as the problem solved with it
-        g = entry["g"]
+        stage = self.problem.stage              # the stage's record, as the problem solved with it
+        params, g = stage.params, entry["g"]
         it = Iteration(len(self.history), run.stage, float(entry["f"]), float(entry["f"] / run.scale),
                        float(entry["volume"]), float(g[0]), change, params.beta,
                        params.penalty, params.brinkman_q, time.perf_counter() - self._t0,
-                       params.coupling or self.scene.effects.coupling, *entry["quality"],
+                       stage.coupling or self.scene.effects.coupling, *entry["quality"],
                        float(g[1]) if len(g) > 1 else float("nan"), self.fallbacks, *entry["ramp"])
         self.history.append(it)
         if "state" in entry:                           # computed now (not replayed): save
@@ -212,47 +212,47 @@ class Optimizer:
             skip = meta["history"][-1]["iteration"] + 1 - sum(not e.get("failed") for e in replay)
             self.history = [Iteration(**h) for h in meta["history"][:skip]]
             self.fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
-            record = lambda r: None if r is None else Continuation(**r)
             stage = meta["stage"]
             run = StageRun(stage, np.asarray(meta["stage_start"], dtype=float), meta["scale"], replay=replay,
                            fallbacks_at_start=self.fallbacks, first_row=skip,
-                           params=record(meta.get("params")) or continuation(self.scene, stage),
-                           pending=[record(r) for r in meta.get("pending", [])],
-                           previous=record(meta.get("previous")) or (continuation(self.scene, stage - 1)
-                                                                     if stage else None))
+                           record=stage_record(meta.get("params")) or continuation(self.scene, stage),
+                           pending=[stage_record(r) for r in meta.get("pending", [])],
+                           previous=stage_record(meta.get("previous")) or (continuation(self.scene, stage - 1)
+                                                                           if stage else None))
             previous = run.previous
             p.set_guess(state)
         for stage in range(run.stage if run else 0, end):
-            pending = run.pending + [run.params] if run else [continuation(self.scene, stage)]
+            pending = run.pending + [run.record] if run else [continuation(self.scene, stage)]
             while pending:                            # the stage's record, after the bridges it needs
                 remaining = s.max_iter - len(self.history)
                 if remaining <= 0:
                     return gamma
-                params = pending.pop()
-                p.set_stage(params)
+                record = pending.pop()
+                p.set_stage(record)
                 if run is None:                       # each stage starts within the volume bound
-                    run = StageRun(stage, p.feasible(gamma), fallbacks_at_start=self.fallbacks, params=params,
+                    run = StageRun(stage, p.feasible(gamma), fallbacks_at_start=self.fallbacks, record=record,
                                    pending=list(pending), previous=previous, first_row=len(self.history))
                 self.run_stage = run                  # (a resumed one: its start and scale, replayed)
                 last = stage == d.n_stages - 1 and not pending
                 try:
                     budget = remaining if last else min(remaining, d.stage_iterations)
                     gamma = self._run_oc_stage(budget, last) if s.algorithm == "OC" else self._run_stage(budget)
-                    previous = params
+                    previous = record
                 except StageStartFailed as failed:
-                    pending += [params, self._bridge(previous, params, len(pending), failed.error)]
+                    pending += [record, self._bridge(previous, record, len(pending), failed.error)]
                 run = None
         return gamma
 
-    def _bridge(self, previous, params, bridges: int, error: NumericalError) -> Continuation:
-        """The bridging stage to try after the first design of the stage record ``params`` failed
+    def _bridge(self, previous: Stage | None, target: Stage, bridges: int, error: NumericalError) -> Stage:
+        """The bridging stage to try after the first design of the stage record ``target`` failed
         (``bridges``: those already pending for it), or the run's failure when none is left."""
-        halfway = bridge(previous, params) if bridges < self.settings.max_failures else None
+        halfway = bridge(previous, target) if bridges < self.settings.max_failures else None
         if halfway is None:
             raise error                                   # (the failed trial is counted already)
+        h = halfway.params
         log.info("design iteration %d: the first design of stage %d (beta %g) failed (%s); a bridging "
                  "stage at beta %g, penalty %g, q %g first (fallback %d)", len(self.history), self.run_stage.stage,
-                 params.beta, error, halfway.beta, halfway.penalty, halfway.brinkman_q, self.fallbacks)
+                 target.params.beta, error, h.beta, h.penalty, h.brinkman_q, self.fallbacks)
         if self.on_fallback:
             self.on_fallback(len(self.history), self.fallbacks, None, error)
         return halfway
@@ -289,9 +289,9 @@ class Optimizer:
         """Raise the run's failure when no fallback is possible: the stage's first design failed,
         or ``optimizer.max_failures`` trial designs failed in a row."""
         run, limit = self.run_stage, self.settings.max_failures
-        params = self.problem.params
+        stage = self.problem.stage
         where = (f"design iteration {len(self.history)} (stage {run.stage}, "
-                 f"{params.coupling or self.scene.effects.coupling}, beta {params.beta:g})")
+                 f"{stage.coupling or self.scene.effects.coupling}, beta {stage.params.beta:g})")
         diagnostic = {"iteration": len(self.history), "stage": run.stage, "fallbacks": self.fallbacks,
                       "failures_in_a_row": run.failures_in_a_row, **error.diagnostic}
         if run.last is None:

@@ -10,10 +10,11 @@ cached (keyed by the design and the continuation parameters), because an
 optimizer asks for the objective and every constraint at the same point.
 The previous state warm-starts the next forward solve; every solve creates
 its own linear solvers, so its result depends only on its inputs.
-Continuation parameters (projection sharpness, SIMP penalty, Brinkman q,
-coupling) are one frozen record, :attr:`Problem.params`, set whole with
-:meth:`Problem.set_stage` (``problem.set_stage(continuation(scene, stage))``)
-and passed into the design map and every solve; nothing else holds them.
+The continuation stage -- its numbers (projection sharpness, SIMP penalty,
+Brinkman q) and its structure (coupling, the structure's material) -- is one
+frozen record, :attr:`Problem.stage`, set whole with :meth:`Problem.set_stage`
+(``problem.set_stage(continuation(scene, stage))``) and passed into the design
+map and every solve; nothing else holds it.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from adjoint import Adjoint
-from tofsi.core.blocks import Continuation
+from tofsi.core.blocks import Continuation, Stage
 from tofsi.coupling.coupled import CoupledModel, State
 from tofsi.optimization.design import DesignMap
 from tofsi.optimization.design_file import read_design
@@ -55,7 +56,7 @@ class Problem:
         self.scene = scene
         self.model = CoupledModel(scene, mesh)
         d = scene.design
-        self.params: Continuation = self.model.params
+        self.stage: Stage = self.model.stage
         self.map = DesignMap(self.model.mesh, d.filter_radius, d.eta, d.filter_kernel, d.filter_fixed)
         self.objective = OBJECTIVES.get(d.objective)()     # its effect is checked with the scene
         self.volume_fraction = VolumeFraction(self.model.mesh, self.map.design)
@@ -83,12 +84,17 @@ class Problem:
             raise InputError("design.initial", path, "a uniform starting design lies in [0, 1]")
         return np.full(self.n_design, value)
 
-    def set_stage(self, params: Continuation) -> None:
-        """Continue with the continuation record ``params`` (e.g. ``continuation(scene, stage)``
-        or ``dataclasses.replace(problem.params, brinkman_q=0.01)``); nothing else changes."""
-        if not isinstance(params, Continuation):
-            raise TypeError("set_stage takes a Continuation record, e.g. tofsi.coupling.coupled.continuation(scene, stage)")
-        self.params = params
+    @property
+    def params(self) -> Continuation:
+        """The numbers of the current stage (projection sharpness, SIMP penalty, Brinkman q, ...)."""
+        return self.stage.params
+
+    def set_stage(self, stage: Stage) -> None:
+        """Continue with the continuation stage ``stage`` (e.g. ``continuation(scene, k)``, or
+        ``problem.stage.with_params(brinkman_q=0.01)``); nothing else changes."""
+        if not isinstance(stage, Stage):
+            raise TypeError("set_stage takes a Stage record, e.g. tofsi.coupling.coupled.continuation(scene, k)")
+        self.stage = stage
 
     def set_guess(self, state: State | None) -> None:
         """The state the next forward solve starts from."""
@@ -131,25 +137,25 @@ class Problem:
         return self.point(gamma).state
 
     def point(self, gamma) -> "DesignPoint":
-        """The evaluation of design ``gamma`` at the current continuation record: its state now,
+        """The evaluation of design ``gamma`` at the current continuation stage: its state now,
         its adjoint and derivatives on first use. The last point is kept, keyed by ``gamma`` and
-        :attr:`params` (an optimizer asks for the objective and every constraint at one point)."""
+        :attr:`stage` (an optimizer asks for the objective and every constraint at one point)."""
         gamma = np.asarray(gamma, dtype=float)
         if gamma.shape != (self.n_design,):
             raise ValueError(f"gamma must have {self.n_design} entries")
         if not np.all(np.isfinite(gamma)):
             raise InputError("gamma", "non-finite", "design variables must be finite")
-        return self.kept_point.get(input_key(gamma, self.params), lambda: self._new_point(gamma))
+        return self.kept_point.get(input_key(gamma, self.stage), lambda: self._new_point(gamma))
 
     def _new_point(self, gamma) -> "DesignPoint":
-        state = self.model.solve(self.densities(gamma), self._guess, params=self.params)
+        state = self.model.solve(self.densities(gamma), self._guess, stage=self.stage)
         self._guess = state.data()
         self.evaluations += 1
         return DesignPoint(gamma.copy(), state)
 
     def _adjoint(self, point: "DesignPoint") -> Adjoint:
         if point.adjoint is None:
-            point.adjoint = Adjoint(self.model.system_for(point.state.params), point.state)
+            point.adjoint = Adjoint(self.model.system_for(point.state.stage), point.state)
         return point.adjoint
 
     def evaluate(self, gamma) -> tuple[float, np.ndarray]:
@@ -163,7 +169,7 @@ class Problem:
         """The constraints at the current continuation record: the volume bound, and in a stage
         whose mesh moves the mesh-quality bound when ``design.min_skewness`` asks for it."""
         names = ["volume"]
-        if self.scene.design.min_skewness > -1.0 and "x" in self.model.system_for(self.params).names:
+        if self.scene.design.min_skewness > -1.0 and "x" in self.model.system_for(self.stage).names:
             names.append("min skewness")
         return names
 

@@ -1,11 +1,11 @@
 """The continuation stages of an optimization run: the running stage's record and the bridges.
 
-A stage is a :class:`~tofsi.core.blocks.Continuation` record (projection beta, SIMP
-penalty, Brinkman q, coupling, structure model) that NLopt (or OC) runs for a
+A stage is a :class:`~tofsi.core.blocks.Stage` record (its numbers: projection beta, SIMP
+penalty, Brinkman q; its structure: coupling, the structure's material) that NLopt (or OC) runs for a
 budget of evaluations. When a stage's first design fails there is no good design
 of that stage to fall back to; the optimizer then steps back in the
 continuation and first runs a *bridging stage* halfway from the previous
-record (:func:`bridge`), recorded in :class:`StageRun` (``params``, ``pending``,
+record (:func:`bridge`), recorded in :class:`StageRun` (``record``, ``pending``,
 ``previous``) so that a checkpoint inside a bridge resumes exactly.
 """
 
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from tofsi.core.blocks import Continuation
+from tofsi.core.blocks import Stage
 from tofsi.core.errors import NumericalError
 
 
@@ -31,19 +31,19 @@ class StageStartFailed(Exception):
 CONTINUED = ("beta", "penalty", "brinkman_q")     # the parameters a bridging stage takes halfway
 
 
-def bridge(previous: Continuation | None, target: Continuation) -> Continuation | None:
+def bridge(previous: Stage | None, target: Stage) -> Stage | None:
     """The stage record halfway from ``previous`` to ``target``: the geometric mean of each
-    continued parameter that differs (the arithmetic one where either is 0), the rest as
-    ``target``; None when there is nothing to bridge (no previous stage, or the two records
-    differ by less than 5 % in every continued parameter)."""
+    continued parameter that differs (the arithmetic one where either is 0), the rest (and the
+    structure) as ``target``; None when there is nothing to bridge (no previous stage, or the two
+    records differ by less than 5 % in every continued parameter)."""
     if previous is None:
         return None
     halfway = {}
     for name in CONTINUED:
-        a, b = getattr(previous, name), getattr(target, name)
+        a, b = getattr(previous.params, name), getattr(target.params, name)
         if abs(b - a) > 0.05 * max(abs(a), abs(b)):
             halfway[name] = math.sqrt(a * b) if a > 0 and b > 0 else 0.5 * (a + b)
-    return replace(target, **halfway) if halfway else None
+    return replace(target, params=replace(target.params, **halfway)) if halfway else None
 
 
 @dataclass
@@ -61,7 +61,7 @@ class StageRun:
     last: tuple | None = None                   # (gamma, entry) of the last good evaluation
     failures_in_a_row: int = 0
     fallbacks_at_start: int = 0                 # the run's fallbacks before the stage
-    params: Continuation | None = None          # the record it runs with (a bridge's, or the stage's)
+    record: Stage | None = None                 # the record it runs with (a bridge's, or the stage's)
     pending: list = field(default_factory=list)  # records of this stage still to run after it (bridges)
-    previous: Continuation | None = None        # the record of the stage (or bridge) before it
+    previous: Stage | None = None               # the record of the stage (or bridge) before it
     first_row: int = 0                          # its first row in the history

@@ -44,8 +44,9 @@ class SlabView:
         self.size = engine.ghosts.size
 
     def split(self, w_ghost: np.ndarray):
-        we = np.asarray(w_ghost)[self.dofs]                                  # (E_r, 22)
-        return we[:, :18].reshape(len(we), -1, 2), we[:, 18:]
+        we = np.asarray(w_ghost)[self.dofs]                                  # (E_r, 2k + 4)
+        k = 2 * self.element.nodes_per_element                               # the velocity's element dofs
+        return we[:, :k].reshape(len(we), -1, 2), we[:, k:]
 
     def corners(self, x=None) -> np.ndarray:
         return self.engine.corners(x)

@@ -76,9 +76,13 @@ class DistributedFlowProblem:
     def params(self):
         return self.problem.params
 
-    def set_stage(self, params) -> None:
-        """The continuation record of the next evaluations (as :meth:`Problem.set_stage`)."""
-        self.problem.set_stage(params)
+    @property
+    def stage(self):
+        return self.problem.stage
+
+    def set_stage(self, stage) -> None:
+        """The continuation stage of the next evaluations (as :meth:`Problem.set_stage`)."""
+        self.problem.set_stage(stage)
 
     def point(self, gamma) -> FlowPoint:
         """The evaluation of ``gamma`` at the current continuation record (collective); the last
@@ -86,7 +90,7 @@ class DistributedFlowProblem:
         gamma = np.array(gamma, dtype=float)
         if gamma.shape != (self.problem.n_design,) or not np.all(np.isfinite(gamma)):
             raise InputError("gamma", f"shape {gamma.shape}", f"{self.problem.n_design} finite design variables")
-        return self.kept_point.get(input_key(gamma, self.params), lambda: self._new_point(gamma))
+        return self.kept_point.get(input_key(gamma, self.stage), lambda: self._new_point(gamma))
 
     def _new_point(self, gamma: np.ndarray) -> FlowPoint:
         p, params = self.problem, self.params

@@ -81,7 +81,7 @@ class DistributedFlow:
     """
 
     def __init__(self, flow, comm=None, amg: str = "gamg", rtol: float = 1e-10):
-        if flow.element.name != "q2q1":
+        if not flow.element.block_preconditioned:
             raise InputError("fluid.element", flow.element.name, "q2q1 for the distributed flow (its kernel "
                              "and its Schur complement approximation are Taylor-Hood's)")
         if not flow.open_outlet:

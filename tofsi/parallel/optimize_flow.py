@@ -80,9 +80,9 @@ class DistributedOptimizer:
         self.mpi.bcast(("evaluate", gamma), root=0)
         return self.problem.point(gamma)
 
-    def _set_stage(self, params) -> None:
-        self.mpi.bcast(("stage", params), root=0)
-        self.problem.set_stage(params)
+    def _set_stage(self, stage) -> None:
+        self.mpi.bcast(("stage", stage), root=0)
+        self.problem.set_stage(stage)
 
     def run(self) -> dict:
         """Optimize from the scene's initial design; the other ranks are released at the end."""
@@ -139,10 +139,10 @@ class DistributedOptimizer:
         return found
 
     def _record(self, stage: int, point, scale: float, change: float) -> None:
-        params = self.problem.params
+        params, coupling = self.problem.params, self.problem.stage.coupling
         it = Iteration(len(self.history), stage, float(point.f), float(point.f / scale), point.volume,
                        float(point.g[0]), change, params.beta, params.penalty, params.brinkman_q,
-                       time.perf_counter() - self._t0, params.coupling or self.problem.scene.effects.coupling)
+                       time.perf_counter() - self._t0, coupling or self.problem.scene.effects.coupling)
         self.history.append(it)
         self._write_history()
         if self.on_iteration:

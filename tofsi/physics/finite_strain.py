@@ -102,14 +102,16 @@ class FiniteStrainElasticity:
     :class:`~tofsi.fem.dirichlet.DirichletOperator`; dofs : element dofs
     ``(E, 8)``; factorize : ``A -> `` a direct solver of the tangent ``A`` (the
     structure's backend and ordering); K0 : the small-strain element stiffness per
-    unit modulus, if already made.
+    unit modulus, if already made; kernel : the hyperelastic element kernel's class
+    (:class:`~tofsi.fem.neo_hookean.NeoHookeanKernel`'s interface).
     """
 
-    def __init__(self, mesh, settings, bc, dofs, factorize, K0=None):
+    def __init__(self, mesh, settings, bc, dofs, factorize, K0=None, kernel=NeoHookeanKernel):
         self.mesh, self.settings, self.bc, self.dofs = mesh, settings, bc, dofs
         self.factorize = factorize
         self.size = bc.size
-        self.kernel = NeoHookeanKernel(mesh.points[mesh.quads], settings.poisson_ratio, K0)
+        self.kernel_type = kernel
+        self.kernel = kernel(mesh.points[mesh.quads], settings.poisson_ratio, K0)
         self.weight = (None if settings.interpolation == "simp"
                        else NonlinearWeight(settings.energy_threshold, settings.energy_sharpness))
         self._restricted = Kept()            # the kernel of the last set of nonlinear elements
@@ -130,7 +132,7 @@ class FiniteStrainElasticity:
         if elements.size == self.kernel.n_elements:
             return self.kernel
         quads = self.mesh.quads[elements]
-        return self._restricted.get(input_key(elements), lambda: NeoHookeanKernel(
+        return self._restricted.get(input_key(elements), lambda: self.kernel_type(
             self.mesh.points[quads], self.settings.poisson_ratio, self.kernel.K0[elements]))
 
     def _values(self, u, rho, simp: SIMP, tangent: bool) -> ElementValues:

@@ -41,7 +41,6 @@ from tofsi.physics.interpolation import Brinkman
 from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.core.kept import Kept, input_key
 from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
-from tofsi.linalg.backends import resolve
 from tofsi.physics.flow_boundary import FlowBoundary
 from tofsi.physics.flow_preconditioner import flow_preconditioner
 from tofsi.physics.fluid_elements import ELEMENTS
@@ -89,12 +88,12 @@ class Flow:
     def __init__(self, mesh, settings, stokes: bool = False, boundary_velocity=None,
                  body_force=None, linear_algebra: LinearAlgebra | None = None):
         self.mesh, self.settings = mesh, settings
-        self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
+        self.linear_algebra = linear_algebra or LinearAlgebra.default()
         self.body_force = body_force
         self.density = 0.0 if stokes else settings.density
         self.symmetric = settings.outlet in ("traction-free", "fixed-pressure")
         self.element = element = ELEMENTS[settings.element]
-        if self.linear_algebra.iterative and element.name != "q2q1":
+        if self.linear_algebra.iterative and not element.block_preconditioned:
             raise InputError("fluid.element", settings.element, "q2q1 on the iterative path (its block "
                              "preconditioner is written for Taylor-Hood); q1q1 with a direct solver.backend")
         nv, n = element.n_nodes(mesh), mesh.n_nodes
@@ -267,11 +266,9 @@ class Flow:
         the LU (:meth:`factorize`), or on the iterative path the block preconditioner, whose
         Schur complement approximation reads this mesh position and this friction
         (:mod:`tofsi.physics.flow_preconditioner`)."""
-        if not self.linear_algebra.iterative:
-            return self.factorize
         x = None if x is None else np.array(x, dtype=float)
         rho = None if rho is None else np.array(rho, dtype=float)
-        return lambda A: flow_preconditioner(self, A, x, rho, params)
+        return self.linear_algebra.saddle_point(self.factorize, lambda A: flow_preconditioner(self, A, x, rho, params))
 
     def solve(self, x=None, rho=None, w0=None, params=None) -> tuple[np.ndarray, FlowReport]:
         """Steady flow on the mesh moved by ``x`` with densities ``rho``; raises on failure."""
@@ -284,11 +281,8 @@ class Flow:
         factorization may precondition this solve's Newton steps; a new one by default)."""
         t0 = time.perf_counter()
         report = FlowReport()
-        if self.linear_algebra.iterative:        # a previous design's hierarchy starts; new ones are this design's
-            factorize = self.factorizer(x, rho, params)
-            solver = RecyclingSolver(factorize) if solver is None else solver.with_factorize(factorize)
-        elif solver is None:
-            solver = RecyclingSolver(self.factorize)
+        factorize = self.factorizer(x, rho, params)     # a previous design's factors start; new ones are this design's
+        solver = RecyclingSolver(factorize) if solver is None else solver.with_factorize(factorize)
         w = self.initial(params) if w0 is None else np.where(self.bc.is_fixed, self.boundary_values(params), w0)
         try:
             w, J = self._newton(w, x, rho, self.density, report, params, solver)

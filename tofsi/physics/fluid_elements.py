@@ -31,9 +31,22 @@ from tofsi.physics.fluid_shape import dissipation_shape, fluid_shape, mass_shape
 
 
 class FluidElement:
-    """What both element types share: the velocity fields at the kernel's points."""
+    """What both element types share: the velocity fields at the kernel's points; and what each
+    can do, as attributes (no one asks an element by its name or degree):
 
+    velocity_on_corners : the velocity lives on the mesh corners (else on nodes of its own);
+    block_preconditioned : the iterative path's block preconditioner and the distributed flow's
+        Schur complement approximation are written for it;
+    fill : the kind of LU fill its unknowns make (:data:`tofsi.runs.memory.FILL`);
+    unknowns(grid) : its unknowns on a mesh of a :class:`~tofsi.fields.base.GridSize`.
+    """
+
+    name: str
     degree: int
+    nodes_per_element: int
+    velocity_on_corners: bool
+    block_preconditioned: bool
+    fill: str
     POINTS: np.ndarray
     WEIGHTS: np.ndarray
     N: np.ndarray
@@ -54,6 +67,14 @@ class TaylorHood(FluidElement):
     name = "q2q1"
     degree = 2
     nodes_per_element = 9
+    velocity_on_corners = False         # the velocity has nodes of its own (written to the Q2 nodes as is)
+    block_preconditioned = True         # the iterative path's and the distributed flow's preconditioners
+    fill = "flow"                       # its LU fill (tofsi.runs.memory.FILL)
+
+    @staticmethod
+    def unknowns(grid) -> int:
+        """Velocity and pressure unknowns on a mesh of ``grid`` (a :class:`~tofsi.fields.base.GridSize`)."""
+        return 2 * grid.nodes9 + grid.nodes
     POINTS, WEIGHTS = fluid_kernel.POINTS, fluid_kernel.WEIGHTS
     N = fluid_kernel.N2                                            # (G, 9)
     to_corners, _ = shape_functions(1, Q2_NODES)                   # (9, 4): M_a at the velocity nodes
@@ -124,6 +145,13 @@ class EqualOrder(FluidElement):
     name = "q1q1"
     degree = 1
     nodes_per_element = 4
+    velocity_on_corners = True
+    block_preconditioned = False        # the block preconditioners are written for Taylor-Hood
+    fill = "flow-q1q1"
+
+    @staticmethod
+    def unknowns(grid) -> int:
+        return 3 * grid.nodes
     POINTS, WEIGHTS = fluid_kernel_q1q1.POINTS, fluid_kernel_q1q1.WEIGHTS
     N = fluid_kernel_q1q1.N1                                       # (G, 4)
     to_corners, _ = shape_functions(1, Q1_NODES)                   # (4, 4): the identity

@@ -2,10 +2,12 @@
 
 Plane-strain elasticity on Q1, over the whole channel (unified domain):
 element moduli by SIMP, ``E_e = Emin + rho_e^p (E0 - Emin)``, on the
-reference mesh; clamped on the scene's channel sides. ``structure.model``:
-``linear`` (small strain, ``R_int = K_s(rho) u``) or ``neo-hookean`` (finite
-strain, total Lagrangian, with the energy interpolation of nearly void
-elements; :mod:`tofsi.physics.finite_strain`). The load ``f`` is the
+reference mesh; clamped on the scene's channel sides. The internal forces
+``R_int`` are its material's (:mod:`tofsi.physics.materials`, chosen by
+``structure.model`` or a stage's ``design.structure_model``): ``linear``
+(small strain, ``R_int = K_s(rho) u``) or ``neo-hookean`` (finite strain,
+total Lagrangian, with the energy interpolation of nearly void elements;
+:mod:`tofsi.physics.finite_strain`). The load ``f`` is the
 fluid's force on the solid phase, :class:`~tofsi.physics.fluid_load.FluidForce`
 (``structure.load``: the momentum-consistent reaction by default), on the
 moved mesh ``X + x``, with the solid phase weighted by ``psi_e = rho_e^k``.
@@ -29,14 +31,14 @@ import scipy.sparse as sp
 
 from tofsi.core.blocks import Continuation
 from tofsi.core.errors import InputError, NumericalError
-from tofsi.fem.assembly import assemble_vector, element_dofs
+from tofsi.core.registry import MATERIALS
+from tofsi.fem.assembly import element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.physics.interpolation import SIMP
-from tofsi.linalg import AMGSolver, DirectSolver, LinearAlgebra, nested_dissection, rigid_body_modes
-from tofsi.linalg.backends import resolve
+from tofsi.linalg import AMGSolver, DirectSolver, LinearAlgebra, nested_dissection
 from tofsi.mesh.structured import DESIGN, SOLID
-from tofsi.physics.finite_strain import FiniteStrainElasticity, FiniteStrainSolution
+from tofsi.physics.materials import Material
 from tofsi.physics.fluid_load import FluidForce
 
 AMG_TOL = 1e-10          # AMG-CG relative residual of the iterative path (the gradient's needs)
@@ -68,13 +70,14 @@ class Structure:
     """Elasticity of the unified domain, loaded by a :class:`~tofsi.physics.flow.Flow`.
 
     ``params`` arguments default to the settings' load exponent and the
-    default SIMP exponent (:class:`~tofsi.core.blocks.Continuation`); ``linear_algebra`` is the
+    default SIMP exponent (:class:`~tofsi.core.blocks.Continuation`); ``material`` arguments
+    to the settings' ``structure.model`` (:meth:`material`); ``linear_algebra`` is the
     model's backend (default: superlu, or the process default).
     """
 
     def __init__(self, mesh, settings, flow=None, linear_algebra: LinearAlgebra | None = None):
         self.mesh, self.settings, self.flow = mesh, settings, flow
-        self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
+        self.linear_algebra = linear_algebra or LinearAlgebra.default()
         self.force = None if flow is None else FluidForce(flow, settings.load)
         self.E0 = settings.youngs_modulus
         self.Emin = settings.e_min_ratio * settings.youngs_modulus
@@ -89,29 +92,24 @@ class Structure:
         self.K0 = element_stiffness(mesh.points[mesh.quads], *lame(1.0, settings.poisson_ratio))
         self.grid = np.repeat(mesh.grid_positions(), 2, axis=0)      # (2n, 2) fine-grid positions
         self.perm = nested_dissection(self.grid)
-        self._finite_strain = None     # its precomputed operators, built when a stage first asks
+        self.materials: dict[str, Material] = {}   # by name, each built (its operators) when first asked
 
-    def model(self, params=None) -> str:
-        """The structure model of a solve: the continuation record's stage model (a design schedule,
-        ``design.structure_model``), else the settings' ``structure.model``."""
-        return self._params(params).structure_model or self.settings.model
-
-    def finite(self, params=None) -> FiniteStrainElasticity | None:
-        """The finite-strain elasticity when the solve's model is neo-Hookean, else None."""
-        if self.model(params) != "neo-hookean":
-            return None
-        if self._finite_strain is None:
-            self._finite_strain = FiniteStrainElasticity(self.mesh, self.settings, self.bc, self.dofs,
-                                                         self.direct, self.K0)
-        return self._finite_strain
-
-    def nonlinear(self, params=None) -> bool:
-        """True at finite strain: ``S`` is nonlinear in ``u`` (its tangent depends on ``u``)."""
-        return self.model(params) == "neo-hookean"
+    def material(self, name: str = "") -> Material:
+        """The material ``name`` (a :data:`~tofsi.core.registry.MATERIALS` entry) bound to this
+        structure; ``""``: the settings' ``structure.model``."""
+        name = name or self.settings.model
+        if name not in self.materials:
+            self.materials[name] = MATERIALS.get(name)(self)
+        return self.materials[name]
 
     def direct(self, A) -> DirectSolver:
         """A direct solver of a stiffness or tangent ``A`` (the model's backend, nested dissection)."""
         return self.linear_algebra.direct(A, perm=self.perm)
+
+    def linear_solver(self, A) -> DirectSolver | AMGSolver:
+        """The solver of a stiffness ``A``: its LU (nested-dissection ordering), or on the
+        iterative path its smoothed-aggregation hierarchy (rigid-body modes) for CG to 1e-10."""
+        return self.linear_algebra.elasticity(A, self.mesh.points, self.perm, tol=AMG_TOL)
 
     def _params(self, params):
         return self.defaults if params is None else params
@@ -121,24 +119,13 @@ class Structure:
         """The modulus interpolation at the SIMP exponent of ``params``."""
         return SIMP(self.E0, self.Emin, self._params(params).penalty)
 
-    def element_matrices(self, rho, params=None) -> np.ndarray:
-        return self.K0 * self.simp(params)(rho)[:, None, None]
-
-    def stiffness(self, rho, params=None, u=None) -> sp.csr_matrix:
+    def stiffness(self, rho, params=None, u=None, material: Material | None = None) -> sp.csr_matrix:
         """``S_u``: the constrained stiffness ``K_s(rho)`` [N/m] (at finite strain the tangent at ``u``)."""
-        finite = self.finite(params)
-        if finite is not None:
-            return finite.tangent(u, rho, self.simp(params))
-        return self.bc.matrix(self.element_matrices(rho, params))
+        return (material or self.material()).tangent(u, rho, self.simp(params))
 
-    def factorize(self, rho, params=None, u=None) -> DirectSolver | AMGSolver:
-        """The LU of ``S_u`` (nested-dissection ordering; at finite strain the tangent at ``u``),
-        or on the iterative path its smoothed-aggregation hierarchy (rigid-body modes) for CG to
-        1e-10 relative."""
-        if self.linear_algebra.iterative:
-            return AMGSolver(self.stiffness(rho, params, u), near_null=rigid_body_modes(self.mesh.points),
-                             tol=AMG_TOL)
-        return self.direct(self.stiffness(rho, params, u))
+    def factorize(self, rho, params=None, u=None, material: Material | None = None) -> DirectSolver | AMGSolver:
+        """The :meth:`linear_solver` of ``S_u`` (at finite strain the tangent at ``u``)."""
+        return self.linear_solver(self.stiffness(rho, params, u, material))
 
     # ---- fluid load --------------------------------------------------------------
     def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
@@ -146,30 +133,17 @@ class Structure:
         return self.force.load(w, x, rho, self._params(params))
 
     # ---- residual, solve and partials ----------------------------------------------
-    def residual(self, u, w, x, rho, params=None) -> np.ndarray:
+    def residual(self, u, w, x, rho, params=None, material: Material | None = None) -> np.ndarray:
         """``S = R_int(u; rho) - f(w, x, rho)`` (unconstrained); at finite strain an element that
         inverts raises :class:`~tofsi.core.errors.NumericalError`."""
-        finite = self.finite(params)
-        if finite is not None:
-            return finite.internal_forces(u, rho, self.simp(params)) - self.load(w, x, rho, params)
-        Ke = self.element_matrices(rho, params)
-        Ku = assemble_vector(self.dofs, np.einsum("eab,eb->ea", Ke, u[self.dofs]), self.size)
-        return Ku - self.load(w, x, rho, params)
+        R_int = (material or self.material()).internal_forces(u, rho, self.simp(params))
+        return R_int - self.load(w, x, rho, params)
 
-    def solve(self, w, x=None, rho=None, params=None, factor: DirectSolver | None = None) -> np.ndarray:
-        """``u`` with ``S(u) = 0`` and the clamped dofs at zero (``factor``: the LU of
-        ``K_s(rho)`` at these ``params``, if already made; at finite strain
-        :meth:`newton_solve` from zero)."""
-        if self.nonlinear(params):
-            return self.newton_solve(w, x, rho, params).u
-        factor = self.factorize(rho, params) if factor is None else factor
-        return factor.solve(self.bc.homogenize(self.load(w, x, rho, params)))
-
-    def newton_solve(self, w, x=None, rho=None, params=None, guess=None, solver=None) -> FiniteStrainSolution:
-        """Finite strain: Newton with load steps, cutback and line search
-        (:meth:`~tofsi.physics.finite_strain.FiniteStrainElasticity.solve`), from ``guess`` if
-        given; ``solver`` a recycling solver whose factorization may precondition this solve."""
-        return self.finite(params).solve(self.load(w, x, rho, params), rho, self.simp(params), guess, solver)
+    def solve(self, w, x=None, rho=None, params=None, material: Material | None = None) -> np.ndarray:
+        """``u`` with ``S(u) = 0`` and the clamped dofs at zero (at finite strain by Newton with
+        load steps from zero)."""
+        material = material or self.material()
+        return material.solve(self.load(w, x, rho, params), rho, self.simp(params))[0]
 
     def displacement_beyond_channel(self, u) -> str:
         """A sentence if the largest displacement exceeds the channel's extent (a structure
@@ -201,19 +175,15 @@ class Structure:
         """``S_x = -df/dx`` (2n x 2n), complex step through the load kernel."""
         return -self.force.shape_partial(w, x, rho, self._params(params))
 
-    def density_vectors(self, u, w, x, rho, params=None) -> np.ndarray:
+    def density_vectors(self, u, w, x, rho, params=None, material: Material | None = None) -> np.ndarray:
         """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e`` (at finite strain
         ``dR_int,e/drho_e`` with the ``E'(rho)`` and ``g'(rho)`` terms)."""
-        finite = self.finite(params)
-        if finite is not None:
-            Ku = finite.density_vectors(u, rho, self.simp(params))
-        else:
-            Ku = np.einsum("eab,eb->ea", self.K0, u[self.dofs]) * self.simp(params).derivative(rho)[:, None]
-        return Ku - self.force.density_vectors(w, x, rho, self._params(params))
+        R_int = (material or self.material()).density_vectors(u, rho, self.simp(params))
+        return R_int - self.force.density_vectors(w, x, rho, self._params(params))
 
-    def density_partial(self, u, w, x, rho, params=None) -> sp.csr_matrix:
+    def density_partial(self, u, w, x, rho, params=None, material: Material | None = None) -> sp.csr_matrix:
         """``S_rho`` (2n x E)."""
-        vals = self.density_vectors(u, w, x, rho, params)
+        vals = self.density_vectors(u, w, x, rho, params, material)
         E = vals.shape[0]
         return sp.csr_matrix((vals.ravel(), (self.dofs.ravel(), np.repeat(np.arange(E), 8))),
                              shape=(self.size, E))

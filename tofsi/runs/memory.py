@@ -139,8 +139,8 @@ def check(scene, command: str, max_memory_gb: float | None = None, jobs: int = 1
     The limit is ``max_memory_gb`` (``--max-memory``), else the scene's
     ``solver.max_memory_gb``, else the memory available now.
     """
-    from tofsi.linalg.backends import resolve
-    backend = os.environ.get("TOFSI_LINEAR_SOLVER", "").strip() or scene.solver.linear_solver
+    from tofsi.linalg.backends import requested, resolve
+    backend = requested(scene.solver.linear_solver)
     if backend != "iterative":
         try:
             backend = resolve(backend)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from tofsi.core.config import option
 from tofsi.core.errors import InputError
-from tofsi.core.registry import OBJECTIVES
+from tofsi.core.registry import MATERIALS, OBJECTIVES
 
 MAX_STIFFENING = 1e6
 """Largest stiffening factor of an element layer. Far beyond it a layer is rigid to round-off:
@@ -25,6 +25,8 @@ than 0.02 between 1e3 and 1e30."""
 @dataclass(frozen=True)
 class CoupledSettings:
     """The two-way coupled solve (table ``[coupled]``)."""
+
+    renamed_keys = {"linear_solver": "jacobian_solver"}     # the old name, accepted with a warning
 
     method: str = option("auto", choices=("auto", "partitioned", "monolithic"),
                          doc="fixed point with Aitken relaxation, or Newton on the block Jacobian "
@@ -43,7 +45,7 @@ class CoupledSettings:
                                        "motion")
     min_load_step: float = option(1.0 / 64.0, gt=0, le=1, doc="the smallest step of the inflow ramp "
                                   "(fraction of the inflow) before the solve fails")
-    linear_solver: str = option("block", choices=("block", "direct"),
+    jacobian_solver: str = option("block", choices=("block", "direct"),
                                 doc="monolithic: the Newton's linear solver -- block: GMRES preconditioned "
                                     "by block Gauss-Seidel over the fields' own factorizations (flow, "
                                     "structure, mesh); direct: the LU of the whole coupled Jacobian. Both "
@@ -93,8 +95,8 @@ class DesignSettings:
     skewness_ks: float = option(100.0, gt=0, le=1e4,
                                 doc="KS parameter p of the mesh-quality constraint's soft minimum (within "
                                     "log(4 E)/p below the worst corner)")
-    structure_model: tuple[str, ...] = option((), choices=("linear", "neo-hookean"),
-                                              doc="structure model of each stage (last value kept): "
+    structure_model: tuple[str, ...] = option((), choices=MATERIALS.names,
+                                              doc="structure material of each stage (last value kept): "
                                                   "small strain while the design is gray (a gray start is "
                                                   "no physical state either way, and finite strain crushes "
                                                   "it), finite strain once the topology exists; empty: "
