@@ -1,51 +1,42 @@
-"""Name -> mover class registry, with entry-point discovery."""
+"""Name -> mover class: the built-in movers of :data:`tofsi.core.registry.MOVERS`, imported when
+first used; plugins come through the entry-point group ``tofsi.movers``."""
 
 from __future__ import annotations
 
-import importlib
-from importlib.metadata import entry_points
-
 from tofsi.core.config import build
-from tofsi.core.errors import InputError
+from tofsi.core.registry import MOVERS
 
 _BUILTIN = {
     "linear": "movers.linear:LinearElasticMover",
     "spring": "movers.spring:SpringMover",
     "yeoh": "movers.yeoh:YeohMover",
 }
-_registered: dict[str, object] = {}
+for _name, _target in _BUILTIN.items():
+    MOVERS.register_later(_name, _target)
 
 
 def register(name: str, target) -> None:
-    """Register a mover class (or a ``"module:Class"`` string) under ``name``."""
+    """Register a mover class (or a ``"module:Class"`` string, imported when first used) under
+    ``name``."""
     if not name or name == "none":
         raise ValueError(f"invalid mover name {name!r}")
-    _registered[name] = target
-
-
-def _entries() -> dict[str, object]:
-    found = dict(_BUILTIN)
-    for ep in entry_points(group="tofsi.movers"):
-        found.setdefault(ep.name, ep.value)
-    found.update(_registered)
-    return found
+    if isinstance(target, str):
+        MOVERS.register_later(name, target)
+    elif getattr(target, "name", name) != name:
+        raise ValueError(f"the mover class {target.__name__} is named {target.name!r}, not {name!r}")
+    else:
+        MOVERS.register(target)
 
 
 def available() -> list[str]:
-    """Names of every mover that can be created."""
-    return sorted(_entries())
+    """Names of every mover that can be asked for (plugins included, loaded or not)."""
+    return sorted(MOVERS.names())
 
 
 def mover_class(name: str):
-    """The class registered under ``name``."""
-    entries = _entries()
-    if name not in entries:
-        raise InputError("mover.name", name, "allowed: one of " + ", ".join(repr(n) for n in sorted(entries)))
-    target = entries[name]
-    if isinstance(target, str):
-        module, _, attr = target.partition(":")
-        target = getattr(importlib.import_module(module), attr)
-    return target
+    """The class registered under ``name`` (an input error naming ``mover.name``, or a plugin's
+    entry point that fails to load)."""
+    return MOVERS.get(name)
 
 
 def create(name: str, **params):

@@ -33,7 +33,7 @@ from tofsi.scene.tables import SceneTable
 from conftest import scene_path
 
 COARSE = ["--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1"]
-SCENE_FOR = {"structure": "beam_in_channel_optimization", "fluid": "double_pipe"}
+SCENE_FOR = {"u": "beam_in_channel_optimization", "w": "double_pipe"}
 
 
 def optimize(cli, tmp_path, objective, iterations=2):
@@ -59,7 +59,7 @@ def test_every_objective_optimizes_through_the_command_line_with_its_pictures(na
 class PressureEnergy(Objective):
     """``1/2 sum_k p_k^2`` over the corner pressures [Pa^2]: defined here and nowhere else."""
 
-    name, needs, label, units = "pressure-energy", "fluid", "pressure energy", "Pa^2"
+    name, needs, label, units = "pressure-energy", "w", "pressure energy", "Pa^2"
 
     def value(self, model, state):
         p = state.w[model.flow.n_velocity:]

@@ -122,6 +122,13 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--design", type=Path, default=None, metavar="FILE",
                            help="a saved design (design.npy of tofsi optimize); the same as "
                                 "--set design.initial=FILE")
+    about = "the scene reference: every table's keys and the objectives, from the registries"
+    p = sub.add_parser("reference", help=about, description=about)
+    p.add_argument("--builtin", action="store_true",
+                   help="the built-in entries only, as docs/scenes.md shows them (default: installed plugins too)")
+    p.add_argument("--update", type=Path, default=None, metavar="FILE",
+                   help="write it into FILE between its generated-part markers (docs/scenes.md) instead of "
+                        "printing it")
     return parser
 
 
@@ -185,6 +192,12 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
     except UsageError as err:
         return _error(f"tofsi: error: {err}", {"error": str(err)}, "--json" in argv, 2)
+    if args.command == "reference":                # no scene: the registries only
+        from tofsi.commands import reference
+        try:
+            return reference.run(args)
+        except (InputError, WriteError) as err:
+            return _error(f"tofsi: error: {err}", {"error": str(err)}, False, err.exit_status)
     configure_logging(args.verbose)
     with sigterm_as_interrupt():
         return _run(args, argv)

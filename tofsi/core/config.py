@@ -25,14 +25,16 @@ import warnings
 from typing import Any
 
 from tofsi.core.errors import InputError
+from tofsi.core.registry import Registry
 
 
 def option(default: Any = dataclasses.MISSING, *, gt=None, ge=None, lt=None, le=None,
            choices=None, length=None, doc: str = ""):
     """A dataclass field with its allowed range (applied to every element of a list).
 
-    choices : the allowed values, or a function returning them (a registry read when
-    a table is validated, e.g. the objectives)
+    choices : the allowed values, a function returning them, or a
+    :class:`~tofsi.core.registry.Registry` (its names, read when a table is validated:
+    the objectives, the materials)
     """
     meta = dict(gt=gt, ge=ge, lt=lt, le=le, choices=choices, length=length, doc=doc)
     if dataclasses.is_dataclass(default):
@@ -42,9 +44,11 @@ def option(default: Any = dataclasses.MISSING, *, gt=None, ge=None, lt=None, le=
     return dataclasses.field(default=default, metadata=meta)
 
 
-def choices_of(meta: dict) -> tuple:
-    """The allowed values of an option (calling a registry function if given one)."""
+def choices_of(meta: dict, builtin: bool = False) -> tuple:
+    """The allowed values of an option (a registry's names; ``builtin``: its built-in ones)."""
     choices = meta.get("choices")
+    if isinstance(choices, Registry):
+        return choices.builtin() if builtin else choices.names()
     return tuple(choices()) if callable(choices) else tuple(choices or ())
 
 
@@ -54,10 +58,10 @@ def join(path: str, key: str | int) -> str:
     return f"{path}.{key}" if path else key
 
 
-def describe_range(meta: dict) -> str:
+def describe_range(meta: dict, builtin: bool = False) -> str:
     """Human-readable statement of the allowed values, e.g. ``0 < value <= 1``."""
-    if meta.get("choices"):
-        return "allowed: one of " + ", ".join(repr(c) for c in choices_of(meta))
+    if meta.get("choices") is not None:
+        return "allowed: one of " + ", ".join(repr(c) for c in choices_of(meta, builtin))
     lower = f"{meta['gt']} < " if meta.get("gt") is not None else (
         f"{meta['ge']} <= " if meta.get("ge") is not None else "")
     upper = f" < {meta['lt']}" if meta.get("lt") is not None else (
@@ -116,7 +120,7 @@ def coerce(tp: Any, value: Any, key: str, meta: dict) -> Any:
     if tp is str:
         if not isinstance(value, str):
             raise InputError(key, value, "expected a string")
-        if meta.get("choices") and value not in choices_of(meta):
+        if meta.get("choices") is not None and value not in choices_of(meta):
             raise InputError(key, value, describe_range(meta))
         return value
     raise TypeError(f"unsupported option type {tp!r} at {key}")
@@ -165,10 +169,10 @@ def renamed(cls: type, raw: dict, path: str) -> dict:
     return raw
 
 
-def _allowed(tp, meta: dict) -> str:
-    """What a field accepts, in words."""
-    if meta.get("choices"):
-        text = describe_range(meta)[len("allowed: "):]
+def _allowed(tp, meta: dict, builtin: bool = False) -> str:
+    """What a field accepts, in words (``builtin``: a registry's built-in names only)."""
+    if meta.get("choices") is not None:
+        text = describe_range(meta, builtin)[len("allowed: "):]
         return f"list of: {text}" if typing.get_origin(tp) is tuple else text
     if tp is bool:
         return "true or false"
@@ -183,16 +187,17 @@ def _allowed(tp, meta: dict) -> str:
     return describe_range(meta)[len("allowed: "):]
 
 
-def documentation(cls: type, path: str = "") -> list[tuple[str, Any, str, str]]:
-    """Rows ``(key, default, allowed, meaning)`` of a record (the scene reference)."""
+def documentation(cls: type, path: str = "", builtin: bool = False) -> list[tuple[str, Any, str, str]]:
+    """Rows ``(key, default, allowed, meaning)`` of a record (the scene reference; ``builtin``:
+    a registry's choices are its built-in names)."""
     rows = []
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
         key = join(path, f.name)
         if dataclasses.is_dataclass(hints[f.name]):
-            rows += documentation(hints[f.name], key)
+            rows += documentation(hints[f.name], key, builtin)
             continue
         default = f.default if f.default is not dataclasses.MISSING else (
             f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
-        rows.append((key, default, _allowed(hints[f.name], f.metadata), f.metadata.get("doc", "")))
+        rows.append((key, default, _allowed(hints[f.name], f.metadata, builtin), f.metadata.get("doc", "")))
     return rows

@@ -23,7 +23,7 @@ import movers
 from tofsi.core.blocks import ExplicitLinearization, FieldBlock, Linearization
 from tofsi.core.config import build, coerce, documentation, option
 from tofsi.core.errors import InputError
-from tofsi.core.registry import FIELDS
+from tofsi.core.registry import FIELDS, MOVERS
 from tofsi.fields.base import MOTION_ONLY, Field, Memory, Picture, on_q2_nodes, state_points
 from tofsi.linalg import RecyclingSolver
 from tofsi.mesh import quality
@@ -74,6 +74,9 @@ class MoverSettings:
 
 
 def build_mover(raw, raw_scene) -> MoverSettings:
+    """The mover table: its keys and a parameter record for every mover that loads (a plugin
+    that fails to import is passed over unless the scene names it, by ``mover.name`` or a
+    ``[mover.<name>]`` table: then its error)."""
     if not isinstance(raw, dict):
         raise InputError("mover", raw, "expected a table")
     names = movers.available()
@@ -88,8 +91,12 @@ def build_mover(raw, raw_scene) -> MoverSettings:
                              "band, or a parameter table of one of " + ", ".join(map(repr, names)))
     factors = coerce(tuple[float, ...], layers, "mover.layers",
                      dict(gt=0, le=MAX_STIFFENING, doc="stiffening factor per element layer"))
-    params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
-    return MoverSettings(name=mover_name(raw_scene), layers=factors, params=MappingProxyType(params),
+    selected = mover_name(raw_scene)
+    classes = {cls.name: cls for cls in MOVERS}
+    for name in {*raw, selected} - {"none"}:
+        classes[name] = movers.mover_class(name)             # the error of a plugin the scene names
+    params = {n: build(cls.Params, raw.get(n, {}), f"mover.{n}") for n, cls in sorted(classes.items())}
+    return MoverSettings(name=selected, layers=factors, params=MappingProxyType(params),
                          layers_from=layers_from, band=band)
 
 
@@ -100,8 +107,9 @@ def write_mover(mover: MoverSettings) -> dict:
     return table
 
 
-def mover_rows() -> list:
-    rows = [("mover.name", "none", "none, " + ", ".join(movers.available()),
+def mover_rows(builtin: bool = False) -> list:
+    names = MOVERS.builtin() if builtin else sorted(cls.name for cls in MOVERS)
+    rows = [("mover.name", "none", "none, " + ", ".join(sorted(names)),
              "the mover (same setting as effects.mesh_motion)"),
             ("mover.layers", (), f"list of numbers, each 0 < value <= {MAX_STIFFENING:g}",
              "stiffening factor of each element layer counted from the interface"),
@@ -109,8 +117,8 @@ def mover_rows() -> list:
              "design scenes: count the layers from the evolving design (smooth dilation of the "
              "densities, gray elements partly stiffened, differentiable) or from the fixed solid only")]
     rows += documentation(BandSettings, "mover.band")
-    for name in movers.available():
-        rows += documentation(movers.mover_class(name).Params, f"mover.{name}")
+    for name in sorted(names):
+        rows += documentation(movers.mover_class(name).Params, f"mover.{name}", builtin)
     return rows
 
 

@@ -48,7 +48,7 @@ class StructureSettings:
                                   doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
                                       "et al.; the SIMP exponent keeps gray elements' displacement "
                                       "bounded)")
-    model: str = option("linear", choices=MATERIALS.names,
+    model: str = option("linear", choices=MATERIALS,
                         doc="the material, an entry of the materials registry (tofsi.physics.materials) -- "
                             "linear: small-strain elasticity; neo-hookean: compressible neo-Hookean at "
                             "finite strain (plane strain, total Lagrangian), solved by Newton with load "

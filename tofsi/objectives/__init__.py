@@ -1,12 +1,16 @@
 """Objectives of a coupled state: one module each, registered in :data:`tofsi.core.registry.OBJECTIVES`.
 
-An objective is one class, in one module of this package, that carries its
-whole story -- the scene key ``design.objective`` reads its ``name``, the
-scene check its ``needs``, the pictures its ``label`` and ``units``::
+An objective is one class, in one module of this package (or of a plugin,
+through the entry-point group ``tofsi.objectives``), that carries its whole
+story -- the scene key ``design.objective`` reads its ``name``, the scene check
+its ``needs`` (the field it is a figure of), the pictures its ``label`` and
+``units``, and the table ``[objective.<name>]`` its parameter record ``Params``
+(a frozen record of :func:`tofsi.core.config.option` fields; the instance's
+``params``)::
 
     @OBJECTIVES.register
     class Compliance(Objective):
-        name, needs, label, units = "compliance", "structure", "compliance", "J/m"
+        name, needs, label, units = "compliance", "u", "compliance", "J/m"
         def value(self, model, state) -> float: ...
         def partials(self, model, state) -> dict: ...
 
@@ -28,15 +32,22 @@ from tofsi.core.registry import OBJECTIVES
 class Objective:
     """A quantity a design minimizes.
 
-    name : the value of ``design.objective``; needs : the effect it is a figure of
-    (``"fluid"`` or ``"structure"``: ``effects.<needs>`` must be on); label, units :
-    how pictures and summaries name it.
+    name : the value of ``design.objective``; needs : the field it is a figure of (``"w"``
+    the flow, ``"u"`` the structure, ...: the scene must solve it); label, units : how
+    pictures and summaries name it; Params : its parameter record (``[objective.<name>]``),
+    None for an objective without parameters; params : the instance's record.
     """
 
     name: str
     needs: str
     label: str
     units: str
+    Params: type | None = None
+
+    def __init__(self, params=None):
+        if self.Params is not None and params is None:
+            params = self.Params()
+        self.params = params
 
     @classmethod
     def axis_label(cls) -> str:

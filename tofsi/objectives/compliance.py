@@ -12,7 +12,7 @@ from tofsi.core.registry import OBJECTIVES
 class Compliance(Objective):
     """The work of the fluid load on the structure's displacement, ``f(w, x, rho) . u`` [J/m]."""
 
-    name, needs, label, units = "compliance", "structure", "compliance", "J/m"
+    name, needs, label, units = "compliance", "u", "compliance", "J/m"
 
     def value(self, model, state) -> float:
         return float(model.structure.load(state.w, state.mesh_displacement, state.rho, state.params) @ state.u)

@@ -21,7 +21,7 @@ from tofsi.core.registry import OBJECTIVES
 class Dissipation(Objective):
     """Borrvall & Petersson's functional ``1/2 int (mu grad v : grad v + alpha |v|^2)`` [W/m]."""
 
-    name, needs, label, units = "dissipation", "fluid", "dissipation functional", "W/m"
+    name, needs, label, units = "dissipation", "w", "dissipation functional", "W/m"
 
     @staticmethod
     def element_values(flow, Xe, w, rho, params=None) -> np.ndarray:

@@ -18,7 +18,7 @@ class StrainDissipation(Objective):
     (Alexandersen 2023). It equals ``dissipation`` plus ``1/2 int mu grad v : grad v^T``,
     a boundary term for divergence-free flow."""
 
-    name, needs, label, units = "dissipation-strain", "fluid", "strain-rate dissipation functional", "W/m"
+    name, needs, label, units = "dissipation-strain", "w", "strain-rate dissipation functional", "W/m"
 
     @staticmethod
     def element_values(flow, Xe, w, rho, params=None) -> np.ndarray:

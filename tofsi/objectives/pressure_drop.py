@@ -15,7 +15,7 @@ class PressureDrop(Objective):
     corner pressures; the channel boundary never moves (the movers fix it), so there is no
     shape partial."""
 
-    name, needs, label, units = "pressure-drop", "fluid", "pressure drop", "Pa"
+    name, needs, label, units = "pressure-drop", "w", "pressure drop", "Pa"
 
     def value(self, model, state) -> float:
         flow = model.flow

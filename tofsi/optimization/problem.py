@@ -58,7 +58,8 @@ class Problem:
         d = scene.design
         self.stage: Stage = self.model.stage
         self.map = DesignMap(self.model.mesh, d.filter_radius, d.eta, d.filter_kernel, d.filter_fixed)
-        self.objective = OBJECTIVES.get(d.objective)()     # its effect is checked with the scene
+        objective = OBJECTIVES.get(d.objective)           # the field it needs is checked with the scene
+        self.objective = objective(scene.objective.params.get(d.objective))
         self.volume_fraction = VolumeFraction(self.model.mesh, self.map.design)
         self.kept_point = Kept()
         self._guess: State | None = None

@@ -30,15 +30,16 @@ MOVER_ALIASES = (("mover", "name"), ("effects", "mesh_motion"))      # one setti
 _INDEXED = re.compile(r"^(?P<key>[^\[\]]+)(?P<indices>(\[\d+\])+)$")     # layers[0], solids[1][2]
 
 
-def table_entries() -> list:
+def table_entries(builtin: bool = False) -> list:
     """Every table a scene holds (:class:`~tofsi.scene.tables.SceneTable` entries), in file
     order: the scene's own, with each registered field's tables after ``[effects]`` (which
-    switches the fields on), in the fields' order."""
+    switches the fields on), in the fields' order (``builtin``: the built-in fields' only)."""
     own = list(SCENE_TABLES)
     names = [table.name for table in own]
     at = names.index("effects") + 1 if "effects" in names else len(own)
+    fields = [FIELDS.get(name) for name in FIELDS.builtin()] if builtin else list(FIELDS)
     entries: dict = {}
-    for table in [*own[:at], *(table for field in FIELDS for table in field.tables), *own[at:]]:
+    for table in [*own[:at], *(table for field in fields for table in field.tables), *own[at:]]:
         if entries.setdefault(table.name, table) is not table:
             raise ValueError(f"two scene tables are named {table.name!r}")
     return list(entries.values())
@@ -172,9 +173,11 @@ def _check_across_tables(scene: Scene) -> None:
         raise InputError("optimizer.algorithm", "OC", "MMA or CCSAQ with design.min_skewness (the "
                          "optimality-criteria update handles one volume bound only)")
     if scene.has_design:
-        needs = OBJECTIVES.get(scene.design.objective).needs       # the effect it is a figure of
-        if getattr(effects, needs) == "none":
-            raise InputError("design.objective", scene.design.objective, f"needs effects.{needs}")
+        needs = OBJECTIVES.get(scene.design.objective).needs       # the field it is a figure of
+        field = FIELDS.get(needs)
+        if not field.active(scene, "optimize"):
+            raise InputError("design.objective", scene.design.objective, f"needs the field {needs!r} "
+                             f"({field.title}), which this scene does not solve")
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
@@ -277,14 +280,15 @@ def load_scene(path: str | Path, overrides=None) -> Scene:
     return scene_from_dict(raw, source=str(path))
 
 
-def reference_table() -> str:
-    """Markdown tables (docs/scenes.md): every scene key of every registered table with its
-    default, allowed values and meaning; then the registered objectives."""
+def reference_table(builtin: bool = False) -> str:
+    """Markdown tables (``docs/scenes.md``, ``tofsi reference``): every scene key of every
+    registered table with its default, allowed values and meaning; then the registered
+    objectives (``builtin``: the built-in entries only, without plugins or entries of your own)."""
     rows = [("name", "(required)", "a string without slashes or control characters, not . or ..",
              "the scene's name (output folder)"),
             ("description", "", "a string", "one line about the scene")]
-    for table in table_entries():
-        rows += table.rows()
+    for table in table_entries(builtin):
+        rows += table.rows(builtin)
 
     def show(value):
         if isinstance(value, tuple):
@@ -294,7 +298,8 @@ def reference_table() -> str:
         return f'"{value}"' if isinstance(value, str) and value != "(required)" else str(value)
     lines = ["| key | default | allowed | meaning |", "|---|---|---|---|"]
     lines += [f"| `{k}` | {show(d)} | {a} | {doc} |".replace("|  |", "| |") for k, d, a, doc in rows]
-    lines += ["", "| `design.objective` | quantity | unit | needs | definition |", "|---|---|---|---|---|"]
-    lines += [f"| `{o.name}` | {o.label} | {o.units} | effects.{o.needs} | "
-              f"{' '.join((o.__doc__ or '').split())} |" for o in OBJECTIVES]
+    objectives = [OBJECTIVES.get(name) for name in OBJECTIVES.builtin()] if builtin else list(OBJECTIVES)
+    lines += ["", "| `design.objective` | quantity | unit | needs the field | definition |", "|---|---|---|---|---|"]
+    lines += [f"| `{o.name}` | {o.label} | {o.units} | `{o.needs}` ({FIELDS.get(o.needs).title}) | "
+              f"{' '.join((o.__doc__ or '').split())} |" for o in objectives]
     return "\n".join(lines) + "\n"

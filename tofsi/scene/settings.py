@@ -56,7 +56,7 @@ class CoupledSettings:
 class DesignSettings:
     """Density design: objective, volume, filter and projection (table ``[design]``)."""
 
-    objective: str = option("compliance", choices=OBJECTIVES.names,
+    objective: str = option("compliance", choices=OBJECTIVES,
                             doc="quantity to minimize, an entry of the objectives registry "
                                 "(tofsi.objectives; their descriptions follow the table)")
     volume_fraction: float = option(0.25, gt=0, lt=1,
@@ -95,7 +95,7 @@ class DesignSettings:
     skewness_ks: float = option(100.0, gt=0, le=1e4,
                                 doc="KS parameter p of the mesh-quality constraint's soft minimum (within "
                                     "log(4 E)/p below the worst corner)")
-    structure_model: tuple[str, ...] = option((), choices=MATERIALS.names,
+    structure_model: tuple[str, ...] = option((), choices=MATERIALS,
                                               doc="structure material of each stage (last value kept): "
                                                   "small strain while the design is gray (a gray start is "
                                                   "no physical state either way, and finite strain crushes "

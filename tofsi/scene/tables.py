@@ -20,12 +20,13 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 import movers
 from tofsi.core.config import build, documentation, option
 from tofsi.core.errors import InputError
-from tofsi.core.registry import SCENE_TABLES
+from tofsi.core.registry import OBJECTIVES, SCENE_TABLES
 from tofsi.scene.settings import CoupledSettings, DesignSettings, OptimizerSettings, SolverSettings, TuneSettings
 
 THIN = 1e-6                 # solids thinner than this fraction of the channel get a warning
@@ -51,7 +52,8 @@ class SceneTable:
     builder : ``(raw table, raw scene) -> record`` when the table needs more than
     :func:`~tofsi.core.config.build` (the mover: its name may come from ``effects``);
     writer : ``record -> plain table`` when ``dataclasses.asdict`` is not enough;
-    reference : ``() -> rows (key, default, allowed, meaning)`` of the scene reference;
+    reference : ``builtin -> rows (key, default, allowed, meaning)`` of the scene reference
+    (``builtin``: of the registries' built-in entries only);
     resumable : keys of the table a ``--resume`` may change (they cannot change the
     replayed history);
     check : ``scene -> None``, raising an :class:`~tofsi.core.errors.InputError` for keys
@@ -62,7 +64,7 @@ class SceneTable:
     record: type
     builder: Callable[[Any, dict], Any] | None = None
     writer: Callable[[Any], dict] | None = None
-    reference: Callable[[], list] | None = None
+    reference: Callable[[bool], list] | None = None
     resumable: tuple[str, ...] = ()
     check: Callable[[Any], None] | None = None
 
@@ -77,9 +79,12 @@ class SceneTable:
         """The record as a plain table (``build`` of it gives the record back)."""
         return self.writer(record) if self.writer is not None else plain(record)
 
-    def rows(self) -> list:
-        """Documentation rows ``(dotted key, default, allowed, meaning)``."""
-        return self.reference() if self.reference is not None else documentation(self.record, self.name)
+    def rows(self, builtin: bool = False) -> list:
+        """Documentation rows ``(dotted key, default, allowed, meaning)`` (``builtin``: of the
+        registries' built-in entries only, as ``docs/scenes.md`` shows them)."""
+        if self.reference is not None:
+            return self.reference(builtin)
+        return documentation(self.record, self.name, builtin)
 
 
 # ---- geometry, mesh, deformation, effects, mover --------------------------------------------
@@ -195,6 +200,44 @@ def mover_name(raw: dict) -> str:
     return "none" if name is None else name
 
 
+@dataclass(frozen=True)
+class ObjectiveSettings:
+    """The objectives' parameters: an ``[objective.<name>]`` table for every objective with a
+    parameter record (:attr:`tofsi.objectives.Objective.Params`)."""
+
+    params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+def _build_objectives(raw, raw_scene) -> ObjectiveSettings:
+    """A record for every objective with parameters that loads (an objective plugin that fails
+    to import is passed over unless the scene gives its table: then its error)."""
+    if not isinstance(raw, dict):
+        raise InputError("objective", raw, "expected a table")
+    classes = {cls.name: cls for cls in OBJECTIVES if cls.Params is not None}
+    for name, value in raw.items():
+        if name not in OBJECTIVES:
+            raise InputError(f"objective.{name}", value, "unknown key; allowed: a parameter table of one of "
+                             + ", ".join(map(repr, sorted(classes))))
+        if OBJECTIVES.get(name).Params is None:
+            raise InputError(f"objective.{name}", value, "this objective has no parameters")
+    return ObjectiveSettings(MappingProxyType({n: build(cls.Params, raw.get(n, {}), f"objective.{n}")
+                                               for n, cls in classes.items()}))
+
+
+def _write_objectives(settings: ObjectiveSettings) -> dict:
+    return {name: plain(params) for name, params in settings.params.items()}
+
+
+def _objective_rows(builtin: bool = False) -> list:
+    names = OBJECTIVES.builtin() if builtin else [cls.name for cls in OBJECTIVES]
+    rows = []
+    for name in names:
+        cls = OBJECTIVES.get(name)
+        if cls.Params is not None:
+            rows += documentation(cls.Params, f"objective.{name}", builtin)
+    return rows
+
+
 def _build_effects(raw, raw_scene) -> Effects:
     if not isinstance(raw, dict):
         raise InputError("effects", raw, "expected a table")
@@ -205,6 +248,8 @@ for _table in (SceneTable("geometry", Geometry), SceneTable("mesh", MeshSettings
                SceneTable("deformation", Deformation),
                SceneTable("effects", Effects, builder=_build_effects),
                SceneTable("design", DesignSettings),
+               SceneTable("objective", ObjectiveSettings, builder=_build_objectives, writer=_write_objectives,
+                          reference=_objective_rows),
                SceneTable("optimizer", OptimizerSettings, resumable=("max_iter", "output_every")),
                SceneTable("coupled", CoupledSettings), SceneTable("tune", TuneSettings),
                SceneTable("solver", SolverSettings, resumable=("max_memory_gb",))):
