@@ -88,3 +88,14 @@ def test_a_renamed_key_is_accepted_with_a_one_line_warning(old, new, value):
     with pytest.raises(InputError, match="old name"):
         load("beam_in_channel_optimization_fsi", f"{old}={value}", f"{new}=block" if table == "coupled"
              else f"{new}=direct")
+
+
+def test_the_command_line_shows_an_old_key_as_one_line(tmp_path):
+    import subprocess
+    import sys
+    from conftest import scene_path
+    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "mesh", str(scene_path("double_pipe")),
+                          "--set", "coupled.linear_solver=direct", "--output", str(tmp_path)],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.splitlines() == ["warning: coupled.linear_solver is an old name: write coupled.jacobian_solver"]

@@ -30,6 +30,7 @@ import os
 import signal
 import sys
 import tempfile
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -132,9 +133,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """A Python warning (an old key's deprecation note) as one line: ``warning: MESSAGE``."""
+    return f"warning: {message}\n"
+
+
 def configure_logging(verbose: int) -> None:
-    """Warnings by default; ``-v`` shows tofsi's solver iterations, ``-vv`` its debug lines.
-    Other libraries (matplotlib, PIL, ...) stay at warnings whatever ``-v`` says."""
+    """Warnings by default, Python's warnings one line each; ``-v`` shows tofsi's solver
+    iterations, ``-vv`` its debug lines. Other libraries (matplotlib, PIL, ...) stay at warnings
+    whatever ``-v`` says."""
+    warnings.formatwarning = one_line_warning
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s",
                         stream=sys.stderr)
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]

@@ -87,7 +87,7 @@ class SceneTable:
         return documentation(self.record, self.name, builtin)
 
 
-# ---- geometry, mesh, deformation, effects, mover --------------------------------------------
+# ---- geometry, mesh, deformation, effects (and the mover's name), objectives ---------------------
 @dataclass(frozen=True)
 class Geometry:
     """A channel ``[0, length] x [0, height]`` with solid, hole and design rectangles."""
