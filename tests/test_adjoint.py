@@ -13,6 +13,7 @@ from adjoint import Adjoint
 from adjoint.checks import central_difference, relative_error
 from tofsi.design import DensityFilter, DesignMap, Projection
 from tofsi.errors import NumericalError
+from tofsi.mesh import DESIGN
 
 from conftest import load
 from gradient_checks import check_total_derivative
@@ -127,15 +128,16 @@ def _dot(forward, transpose, n_in, n_out, seed=5):
 
 def test_filter_projection_and_design_map_transposes():
     rng = np.random.default_rng(4)
-    c = rng.uniform(0, 1, (60, 2))
-    F = DensityFilter(c, 0.3)
-    lhs, rhs = _dot(F.forward, F.transpose, 60, 60)
+    P = problem()
+    mesh = P.model.mesh
+    design = np.flatnonzero(mesh.region == DESIGN)
+    F = DensityFilter(mesh, design, 0.3)
+    lhs, rhs = _dot(lambda a: F.forward(a) - F.forward(0 * a), F.transpose, design.size, design.size)
     assert lhs == pytest.approx(rhs, rel=1e-13)
     proj = Projection(8.0, 0.4)
     x = rng.uniform(0, 1, 60)
     lhs, rhs = _dot(lambda a: proj.derivative(x) * a, lambda b: proj.transpose(x, b), 60, 60)
     assert lhs == pytest.approx(rhs, rel=1e-13)
-    P = problem()
     M = DesignMap(P.model.mesh, 0.2)
     g = rng.uniform(0, 1, M.size)
     h = 1e-6
