@@ -10,6 +10,7 @@ import pyamg.krylov
 import scipy.sparse.linalg as spla
 
 from tofsi.errors import NumericalError
+from tofsi.linalg.krylov import gmres
 
 log = logging.getLogger(__name__)
 GMRES_RESTART = 50          # restart length of GMRES preconditioned by an AMG cycle
@@ -67,6 +68,7 @@ class RecyclingSolver:
         self.fresh_cost = None             # iterations per decade of a fresh hierarchy
         self.factorizations = 0
         self.krylov_iterations = 0
+        self.transposed = None             # the last transposed solve's solution: the next one's start
 
     def with_factorize(self, factorize) -> "RecyclingSolver":
         """A solver for a new sequence of systems (the next design's) that starts from this
@@ -74,6 +76,7 @@ class RecyclingSolver:
         left as it is)."""
         other = RecyclingSolver(factorize, self.max_iter, self.rtol, self.refresh_after)
         other.solver, other.stale, other.fresh_cost = self.solver, self.stale, self.fresh_cost
+        other.transposed = self.transposed
         return other
 
     def refresh(self, A) -> None:
@@ -114,8 +117,9 @@ class RecyclingSolver:
                    else int(self.fresh_cost * math.log10(r0 / goal) + 2 * setup) + 1)
             if self.solver.symmetric:
                 x, its = self._cg(A, b, apply, x0, goal, cap)
-            else:
-                x, its = flexible_gmres(A, b, apply, goal, cap, GMRES_RESTART, x0)
+            else:                          # GMRES(m) for a fixed linear preconditioner, else FGMRES
+                x, its = gmres(A, b, apply, goal, cap, getattr(self.solver, "restart", GMRES_RESTART), x0,
+                               flexible=not getattr(self.solver, "linear_preconditioner", False))
         self.krylov_iterations += its
         residual = float(np.linalg.norm(b - A @ x))
         ok = bool(np.all(np.isfinite(x))) and residual <= 1.01 * goal
@@ -149,12 +153,15 @@ class RecyclingSolver:
         return x
 
     def solve_transpose(self, A, b: np.ndarray) -> np.ndarray:
-        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance."""
+        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance; a solver with its own
+        Krylov solve starts from the last transposed solution (the previous design's adjoint)."""
         if not np.any(b):
             return np.zeros_like(b)
         if self._usable(A) and hasattr(self.solver, "solve_with"):    # a solver with its own Krylov norm
+            guess = self.transposed if self.transposed is not None and self.transposed.shape == b.shape else None
             try:
-                return self.solver.solve_with(A, b, transpose=True)
+                self.transposed = self.solver.solve_with(A, b, transpose=True, guess=guess)
+                return self.transposed
             except NumericalError:
                 pass                                                  # stale: a new one below
         elif self._usable(A) and self.solver.preconditioner(True) is not None:
