@@ -31,9 +31,12 @@ class SparsePattern:
     On the first assembly the CSR structure comes from scipy's COO-to-CSR
     conversion and every element value gets its slot in the CSR data array
     (dropped values the slot ``nnz``, cut off); only the slots are kept (one
-    int64 per element value), the triplet indices are not. Each assembly is
-    then one ``bincount``, summing in the same order every time, so results
-    never depend on how many assemblies came before (bitwise reproducible runs).
+    int32 per element value while ``nnz < 2^31``), the triplet indices and
+    ``keep`` are not. Each assembly then adds the element values into their
+    slots in element order (``np.add.at``: no index copy, and by chunks of
+    elements with :meth:`add`, so the element matrices need not all be held),
+    the same sums in the same order every time, so results never depend on how
+    many assemblies came before (bitwise reproducible runs).
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
@@ -71,29 +74,41 @@ class SparsePattern:
         slot = np.searchsorted(keys, rows * self.shape[1] + cols)
         del keys, rows, cols
         n = self.n_element_values
-        self.diagonal_slot = slot[n:].copy()
-        self.element_slot = (slot[:n] if self.keep is None
-                             else np.where(self.keep.ravel(), slot[:n], self.indices.size))
+        index = np.int32 if self.indices.size < np.iinfo(np.int32).max else np.int64
+        self.diagonal_slot = slot[n:].astype(index)
+        element_slot = slot[:n] if self.keep is None else np.where(self.keep.ravel(), slot[:n], self.indices.size)
+        del slot
+        self.element_slot = element_slot.astype(index).reshape(self.element_rows.shape[0], -1)   # (E, a b)
+        self.keep = None
 
     @property
     def nnz(self) -> int:
         self._ensure_slots()
         return int(self.indices.size)
 
-    def assemble(self, values: np.ndarray, diagonal: np.ndarray | float | None = None):
-        """CSR matrix from element values ``(E, a, b)`` and the extra diagonal entries
-        (element values first, then the diagonal, in that order every time)."""
-        self._ensure_slots()
-        nnz = self.nnz
-        values = values.reshape(-1)
-        if np.iscomplexobj(values):
-            data = (np.bincount(self.element_slot, weights=values.real, minlength=nnz + 1)
-                    + 1j * np.bincount(self.element_slot, weights=values.imag, minlength=nnz + 1))[:nnz]
-        else:
-            data = np.bincount(self.element_slot, weights=values, minlength=nnz + 1)[:nnz]
+    def zeros(self, dtype=float) -> np.ndarray:
+        """A zero data array to :meth:`add` element values into (``nnz + 1``: the last slot
+        takes the dropped values)."""
+        return np.zeros(self.nnz + 1, dtype=dtype)
+
+    def add(self, data: np.ndarray, elements: slice, values: np.ndarray) -> None:
+        """Add the values ``(e, a, b)`` of the elements ``elements`` (a slice) into ``data``."""
+        np.add.at(data, self.element_slot[elements].reshape(-1), values.reshape(-1))
+
+    def matrix(self, data: np.ndarray, diagonal: np.ndarray | float | None = None):
+        """The CSR matrix of ``data`` (from :meth:`zeros` and :meth:`add`) with the extra
+        diagonal entries added last."""
+        data = data[:self.nnz]
         if self.diagonal_slot.size:
             np.add.at(data, self.diagonal_slot, 0.0 if diagonal is None else diagonal)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+    def assemble(self, values: np.ndarray, diagonal: np.ndarray | float | None = None):
+        """CSR matrix from element values ``(E, a, b)`` and the extra diagonal entries
+        (element values first, then the diagonal, in that order every time)."""
+        data = self.zeros(values.dtype)
+        self.add(data, slice(None), values)
+        return self.matrix(data, diagonal)
 
 
 def assemble_vector(dofs: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
