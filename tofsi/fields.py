@@ -155,7 +155,8 @@ class FlowEntry(Field):
 
     def build(self, model):
         return Flow(model.mesh, model.scene.fluid, stokes=model.scene.effects.fluid == "stokes",
-                    linear_algebra=model.linear_algebra)
+                    linear_algebra=model.linear_algebra,
+                    keep_element_jacobians=model.scene.effects.coupling == "two-way")
 
     def block(self, model, two_way):
         return FlowField(model.flow, moving_mesh=two_way)

@@ -65,7 +65,7 @@ class FlowLinearization(_EliminatedLinearization):
         return _moved(self.fields, self.block.inputs)
 
     def _linearize(self):
-        J, R, _ = self.flow.jacobian(self.value, self.X, self.rho, params=self.params)
+        J, R = self.flow.jacobian(self.value, self.X, self.rho, params=self.params)
         self._J = J
         if self._residual is None:
             self._residual = self.block.constrain(R, self.value, self.params)
