@@ -115,24 +115,24 @@ class BlockSaddlePreconditioner:
             raise ValueError(f"pressure_solver {pressure_solver!r}: allowed {PRESSURE_SOLVERS}")
         A = sp.csr_matrix(A)
         nv = n_velocity
-        self.J, self.shape, self.tol, self.max_iter = A, A.shape, tol, max_iter
+        self.shape, self.tol, self.max_iter = A.shape, tol, max_iter
         self.transpose_tol = transpose_tol
         self.nv = nv
         self.iterations = 0
         self.fixed_p = np.flatnonzero(np.asarray(fixed)[nv:])
         self.A = A[:nv, :nv].tocsr()                                 # (n_v, n_v)
-        self.Bt = A[:nv, nv:].tocsr()                                # (n_v, n_p)
-        self.B = A[nv:, :nv].tocsr()                                 # (n_p, n_v)
+        self.B = A[nv:, :nv].tocsr()                                 # (n_p, n_v); the (v, p) block is B^T
+        self.pinned = np.zeros(A.shape[0] - nv)                      # (n_p,) C: 1 on pinned pressures
+        self.pinned[self.fixed_p] = 1.0
         self.mass = np.array(mass, dtype=float)
         self.mass[self.fixed_p] = np.inf                             # pinned pressures: set apart
-        self._near_null = velocity_near_null(nv)
-        self._ml = _amg(self.A, self._near_null)
+        self._ml = _amg(self.A, velocity_near_null(nv))
         self._cycle = self._ml.aspreconditioner(cycle="V").matvec
         self.asymmetry = float(spla.norm(self.A - self.A.T) / max(spla.norm(self.A), 1e-300))
         self._cycle_t = self._cycle if self.asymmetry <= SHARED_HIERARCHY_ASYMMETRY else None
         self._darcy = None
         if darcy_weights is not None:
-            L = (self.B @ sp.diags(darcy_weights) @ self.Bt).tocsr()   # (n_p, n_p) SPD on free pressures
+            L = (self.B @ sp.diags(darcy_weights) @ self.B.T).tocsr()  # (n_p, n_p) SPD on free pressures
             if self.fixed_p.size:
                 keep = np.ones(L.shape[0])
                 keep[self.fixed_p] = 0.0
@@ -155,7 +155,7 @@ class BlockSaddlePreconditioner:
         return _amg(L, symmetric=True).aspreconditioner(cycle="V").matvec
 
     def _bytes(self) -> int:
-        total = sum(M.data.nbytes + M.indices.nbytes + M.indptr.nbytes for M in (self.A, self.B, self.Bt))
+        total = sum(M.data.nbytes + M.indices.nbytes + M.indptr.nbytes for M in (self.A, self.B))
         for level in self._ml.levels:
             for name in ("A", "P", "R"):
                 M = getattr(level, name, None)
@@ -175,7 +175,7 @@ class BlockSaddlePreconditioner:
         """``P^{-1} r``: the pressure first, then the velocity with it."""
         nv = self.nv
         p = self._schur(r[nv:])
-        u = self._cycle(r[:nv] - self.Bt @ p)
+        u = self._cycle(r[:nv] - self.B.T @ p)
         return np.concatenate([u, p])
 
     def _apply_transpose(self, r: np.ndarray) -> np.ndarray:
@@ -183,7 +183,7 @@ class BlockSaddlePreconditioner:
         symmetric, else of ``A^T``'s), then the pressure."""
         nv = self.nv
         if self._cycle_t is None:
-            self._cycle_t = _amg(self.A.T.tocsr(), self._near_null).aspreconditioner(cycle="V").matvec
+            self._cycle_t = _amg(self.A.T.tocsr(), velocity_near_null(self.nv)).aspreconditioner(cycle="V").matvec
         u = self._cycle_t(r[:nv])
         p = self._schur(r[nv:] - self.B @ u)
         return np.concatenate([u, p])
@@ -226,10 +226,22 @@ class BlockSaddlePreconditioner:
             return self._gmres(A.T, b, self._apply_transpose, self.transpose_tol, guess)
         return self._gmres(A, b, self._apply, self.tol, guess)
 
+    def matrix(self) -> spla.LinearOperator:
+        """``J = [[A, B^T], [B, C]]`` from the blocks held (``C`` the pinned pressures'
+        identity), as an operator: the assembled matrix is not kept beside its blocks."""
+        nv = self.nv
+
+        def product(x, transpose):
+            v, p = x[:nv], x[nv:]
+            top = (self.A.T @ v if transpose else self.A @ v) + self.B.T @ p
+            return np.concatenate([top, self.B @ v + self.pinned * p])
+        return spla.LinearOperator(self.shape, matvec=lambda x: product(x, False),
+                                   rmatvec=lambda x: product(x, True), dtype=float)
+
     def solve(self, b: np.ndarray) -> np.ndarray:
-        """``J^{-1} b`` by FGMRES to ``tol`` relative to ``|D^{-1/2} b|`` (NumericalError otherwise)."""
-        return self.solve_with(self.J, b)
+        """``J^{-1} b`` by GMRES to ``tol`` relative to ``|D^{-1/2} b|`` (NumericalError otherwise)."""
+        return self.solve_with(self.matrix(), b)
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
         """``J^{-T} b``, as :meth:`solve` to ``transpose_tol``."""
-        return self.solve_with(self.J, b, transpose=True)
+        return self.solve_with(self.matrix(), b, transpose=True)
