@@ -192,23 +192,16 @@ class BlockSaddlePreconditioner:
         """``b -> P^{-1} b`` (or ``P^{-T} b``), for Krylov solves with this or a nearby matrix."""
         return self._apply_transpose if transpose else self._apply
 
-    def _gmres(self, M, b: np.ndarray, apply, tol: float, guess=None) -> np.ndarray:
+    def _gmres(self, M, b: np.ndarray, apply, tol: float) -> np.ndarray:
         """GMRES(m) on ``D^{-1/2} M D^{-1/2} y = D^{-1/2} b``, ``x = D^{-1/2} y`` (same iterates'
-        preconditioned operator, the scaled residual norm) to ``tol``, from ``guess`` where its
-        residual is below ``|b|`` (else from zero)."""
+        preconditioned operator, the scaled residual norm) to ``tol``."""
         s = self.scale
         Ms = spla.LinearOperator(M.shape, matvec=lambda y: s * (M @ (s * y)), dtype=float)
         bs = s * b
         bnorm = float(np.linalg.norm(bs))
         if bnorm == 0.0:
             return np.zeros_like(b)
-        y0 = None
-        if guess is not None:
-            y0 = guess / s
-            start = float(np.linalg.norm(bs - Ms @ y0)) / bnorm
-            log.info("GMRES start: the guess's scaled residual %.2e relative", start)
-            y0 = y0 if start < 1.0 else None
-        y, its = gmres(Ms, bs, lambda r: apply(r / s) / s, tol * bnorm, self.max_iter, self.restart, y0)
+        y, its = gmres(Ms, bs, lambda r: apply(r / s) / s, tol * bnorm, self.max_iter, self.restart)
         self.iterations = its
         relative = float(np.linalg.norm(bs - Ms @ y)) / bnorm
         x = s * y
@@ -218,13 +211,13 @@ class BlockSaddlePreconditioner:
                                  {"iterations": its, "relative_residual": relative, "size": M.shape[0]})
         return x
 
-    def solve_with(self, A, b: np.ndarray, transpose: bool = False, guess=None) -> np.ndarray:
+    def solve_with(self, A, b: np.ndarray, transpose: bool = False) -> np.ndarray:
         """``A^{-1} b`` (``A^{-T} b``) for ``A`` this or a nearby matrix (a later Newton iterate's),
-        by GMRES with this preconditioner to ``tol`` (``transpose_tol``) in the scaled norm from
-        ``guess`` (NumericalError otherwise)."""
+        by GMRES with this preconditioner to ``tol`` (``transpose_tol``) in the scaled norm
+        (NumericalError otherwise)."""
         if transpose:
-            return self._gmres(A.T, b, self._apply_transpose, self.transpose_tol, guess)
-        return self._gmres(A, b, self._apply, self.tol, guess)
+            return self._gmres(A.T, b, self._apply_transpose, self.transpose_tol)
+        return self._gmres(A, b, self._apply, self.tol)
 
     def matrix(self) -> spla.LinearOperator:
         """``J = [[A, B^T], [B, C]]`` from the blocks held (``C`` the pinned pressures'

@@ -68,7 +68,6 @@ class RecyclingSolver:
         self.fresh_cost = None             # iterations per decade of a fresh hierarchy
         self.factorizations = 0
         self.krylov_iterations = 0
-        self.transposed = None             # the last transposed solve's solution: the next one's start
 
     def with_factorize(self, factorize) -> "RecyclingSolver":
         """A solver for a new sequence of systems (the next design's) that starts from this
@@ -76,7 +75,6 @@ class RecyclingSolver:
         left as it is)."""
         other = RecyclingSolver(factorize, self.max_iter, self.rtol, self.refresh_after)
         other.solver, other.stale, other.fresh_cost = self.solver, self.stale, self.fresh_cost
-        other.transposed = self.transposed
         return other
 
     def refresh(self, A) -> None:
@@ -153,15 +151,12 @@ class RecyclingSolver:
         return x
 
     def solve_transpose(self, A, b: np.ndarray) -> np.ndarray:
-        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance; a solver with its own
-        Krylov solve starts from the last transposed solution (the previous design's adjoint)."""
+        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance."""
         if not np.any(b):
             return np.zeros_like(b)
         if self._usable(A) and hasattr(self.solver, "solve_with"):    # a solver with its own Krylov norm
-            guess = self.transposed if self.transposed is not None and self.transposed.shape == b.shape else None
             try:
-                self.transposed = self.solver.solve_with(A, b, transpose=True, guess=guess)
-                return self.transposed
+                return self.solver.solve_with(A, b, transpose=True)
             except NumericalError:
                 pass                                                  # stale: a new one below
         elif self._usable(A) and self.solver.preconditioner(True) is not None:
