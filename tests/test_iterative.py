@@ -144,4 +144,3 @@ def test_the_preconditioner_holds_the_jacobian_as_its_blocks(outlet):
     v = rng.standard_normal(J.shape[0])
     np.testing.assert_allclose(P.matrix() @ v, J @ v, rtol=0, atol=1e-13 * abs(J).max() * np.abs(v).max())
     np.testing.assert_allclose(P.matrix().T @ v, J.T @ v, rtol=0, atol=1e-13 * abs(J).max() * np.abs(v).max())
-
