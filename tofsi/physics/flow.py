@@ -386,6 +386,7 @@ class Flow:
             dw = solver.solve(J, -r, rtol=forcing_term(history, target))
             dw[self.bc.fixed] = 0.0
             report.newton_iterations += 1
+            J = None                          # let this Jacobian go before the trial's is assembled
 
             def trial(alpha):
                 w_t = w + alpha * dw
