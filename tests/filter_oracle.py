@@ -5,7 +5,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from tofsi.mesh import DESIGN, SOLID
+from tofsi.mesh.structured import DESIGN, SOLID
 
 
 def weights(distance, radius, kernel):

@@ -7,10 +7,10 @@ dot-product test; and what it stores."""
 import numpy as np
 import pytest
 
-from tofsi.channel import build_mesh
-from tofsi.design import DensityFilter, DesignMap
-from tofsi.grading import graded_axis
-from tofsi.mesh import DESIGN, FLUID, SOLID, StructuredQuadMesh
+from tofsi.mesh.channel import build_mesh
+from tofsi.optimization.design import DensityFilter, DesignMap
+from tofsi.mesh.grading import graded_axis
+from tofsi.mesh.structured import DESIGN, FLUID, SOLID, StructuredQuadMesh
 
 from conftest import load
 from filter_oracle import MatrixFilter

@@ -68,7 +68,7 @@ import pyamg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.linalg.krylov import gmres
 
 log = logging.getLogger(__name__)

@@ -9,7 +9,7 @@ import numpy as np
 import pyamg.krylov
 import scipy.sparse.linalg as spla
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.linalg.krylov import gmres
 
 log = logging.getLogger(__name__)
