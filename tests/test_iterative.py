@@ -1,6 +1,6 @@
-"""The iterative flow solve (block-preconditioned FGMRES) against the sparse LU, forward and transposed.
+"""The iterative flow solve (block-preconditioned GMRES(30)) against the sparse LU, forward and transposed.
 
-Tolerance stated: FGMRES to a scaled relative residual ``tol`` gives the
+Tolerance stated: GMRES to a scaled relative residual ``tol`` gives the
 velocity to ``1e3 tol`` and the pressure to ``1e6 tol`` relative to the LU
 solution (measured at alpha_max = 1e5: 1e-9 and 2e-6 .. 7e-6 at the forward
 solves' 1e-10, 3e-7 and 4e-5 .. 1.1e-3 at the transposed (adjoint) solves'

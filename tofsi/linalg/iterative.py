@@ -106,7 +106,7 @@ def _amg(M: sp.csr_matrix, near_null=None, symmetric: bool = False):
 
 
 class BlockSaddlePreconditioner:
-    """Block-triangular preconditioner of a saddle-point matrix, and flexible GMRES with it.
+    """Block-triangular preconditioner of a saddle-point matrix, and GMRES(m) with it.
 
     A : the square matrix ``[[A, B^T], [B, C]]`` with the first ``n_velocity`` unknowns the
         velocities; ``C`` holds only Dirichlet (pinned pressure) identity rows
@@ -115,7 +115,7 @@ class BlockSaddlePreconditioner:
         (0 on fixed dofs), or None to use ``M_mu`` alone
     fixed : ``(n,)`` bool, the Dirichlet dofs (identity rows and columns of ``A``)
     pressure_solver : ``amg`` (a V-cycle on ``L_alpha``) or ``direct`` (its sparse LU)
-    tol, transpose_tol : FGMRES tolerances (scaled relative residual) of the solves with ``J``
+    tol, transpose_tol : GMRES tolerances (scaled relative residual) of the solves with ``J``
         and with ``J^T``
     """
 
