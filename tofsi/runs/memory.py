@@ -36,7 +36,8 @@ from tofsi.core.errors import InputError
 from tofsi.core.registry import FIELDS
 
 GB = 1024.0 ** 3
-BASE_BYTES = 0.15 * GB          # interpreter, NumPy/SciPy, the scene (measured 0.10 GB at import)
+BASE_BYTES = 0.13 * GB          # interpreter, NumPy/SciPy, the scene (measured 0.10 GB at import, 0.14 GB for
+                                # a whole solve at 800 elements; 0.15 before issue 34 made the solves leaner)
 BYTES_PER_FACTOR_ENTRY = 22.2   # 12 stored + the factorization's working space; fitted to tofsi solve
                                 # at 16 200-129 795 elements (SuperLU); the fields' a_f refitted after
                                 # the fluid kernel ran in chunks (16 200 and 64 980 elements)
