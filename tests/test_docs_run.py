@@ -44,13 +44,17 @@ def commands(block: str) -> list[list[str]]:
 
 
 def test_the_first_bash_block_is_the_ci_commands():
-    """.ci/run executes the first bash block: the install with the headline (two-way) example, then the tests.
-    They are not rerun here (the example runs below at a small size, the tests are this suite)."""
+    """.ci/run executes the first bash block: the install with the headline (two-way) example, then the
+    default tests; then it runs the acceptance tests. They are not rerun here (the example runs at a
+    small size in this file, the tests are this suite)."""
     language, block = BLOCKS[0]
     lines = commands(block)
     assert language == "bash" and len(lines) == 2
     assert "examples/optimize_fsi.py" in lines[0] and lines[1][:3] == ["python3", "-m", "pytest"]
     assert (ROOT / "examples" / "optimize_fsi.py").is_file()
+    # then the acceptance tests, as README's text below the block says
+    ci = (ROOT / ".ci" / "run").read_text().strip().splitlines()
+    assert ci[-1] == "python -m pytest -n 2 -m acceptance" and "`python -m pytest -n 2 -m acceptance`" in README
 
 
 @pytest.mark.parametrize("index", [i for i, (lang, _) in enumerate(BLOCKS) if lang == "python"])
