@@ -34,21 +34,22 @@ def test_mesh_json_reports_node_and_element_counts(name, tmp_path):
     ("mesh.h_mni=0.1", "mesh.h_mni"), ("mesh.h_min=-1", "mesh.h_min"),
     ("mesh.h_min=nan", "mesh.h_min"), ("mover.name=sprung", "mover.name"),
 ])
-def test_malformed_scene_exits_2_with_one_line_naming_the_key(override, key, tmp_path):
+def test_malformed_scene_exits_2_with_one_line_naming_the_key(override, key, cli, tmp_path):
     out = tmp_path / "out"
-    run = tofsi("mesh", scene_path("foil_in_channel"), "--set", override, "--output", out)
+    run = cli("mesh", scene_path("foil_in_channel"), "--set", override, "--output", out)
     assert run.returncode == 2
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and key in lines[0] and "Traceback" not in run.stderr
     assert not out.exists()
 
 
-def test_missing_scene_file_exits_2(tmp_path):
-    run = tofsi("mesh", tmp_path / "missing.toml")
+def test_missing_scene_file_exits_2(cli, tmp_path):
+    run = cli("mesh", tmp_path / "missing.toml")
     assert run.returncode == 2 and "no such file" in run.stderr
 
 
 def test_unknown_option_exits_2_in_one_line():
+    """In a fresh interpreter: the exit status of ``python -m tofsi.cli`` itself."""
     run = tofsi("mesh", scene_path("foil_in_channel"), "--frobnicate")
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
 

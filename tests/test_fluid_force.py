@@ -95,10 +95,9 @@ def test_solve_reports_drag_and_lift_as_the_load_resultant_with_and_without_the_
     assert foil["drag"] > 0 and abs(foil["lift"]) < 1e-9 * foil["drag"]      # no structure effect
 
 
-def test_a_floating_structure_is_an_input_error_naming_the_clamp(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "solve", str(scene_path("foil_in_channel")),
-                          "--set", "effects.fluid=navier-stokes", "--set", "effects.structure=linear-elastic",
-                          "--output", str(tmp_path)], capture_output=True, text=True)
+def test_a_floating_structure_is_an_input_error_naming_the_clamp(cli, tmp_path):
+    run = cli("solve", scene_path("foil_in_channel"), "--set", "effects.fluid=navier-stokes",
+              "--set", "effects.structure=linear-elastic", "--output", tmp_path)
     assert run.returncode == 2
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and "structure.clamped" in lines[0]

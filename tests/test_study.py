@@ -79,9 +79,7 @@ def test_tofsi_study_sweeps_stiffening_and_reports_the_best(tmp_path):
     assert (tmp_path / "study.png").is_file()
 
 
-def test_tofsi_study_rejects_a_bad_sweep_key_before_running(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "study", str(scene_path("foil_in_channel")),
-                          "--sweep", "mover.yeoh.A21=1:2:1", "--output", str(tmp_path / "o")],
-                         capture_output=True, text=True)
+def test_tofsi_study_rejects_a_bad_sweep_key_before_running(cli, tmp_path):
+    run = cli("study", scene_path("foil_in_channel"), "--sweep", "mover.yeoh.A21=1:2:1", "--output", tmp_path / "o")
     assert run.returncode == 2 and "mover.yeoh.A21" in run.stderr
     assert not (tmp_path / "o").exists()
