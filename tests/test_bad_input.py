@@ -440,6 +440,7 @@ def test_resume_and_overwrite_together_are_refused(cli, tmp_path):
     assert run.returncode == 2 and len(lines) == 1 and "--resume" in lines[0] and "--overwrite" in lines[0]
 
 
+@pytest.mark.acceptance
 @pytest.mark.parametrize("example", ["mesh_motion_study.py", "tuning_band_study.py"])
 def test_the_study_examples_run_without_arguments(example, tmp_path):
     """They exited 2 asking for a study name; without one they run their small default."""

@@ -1,4 +1,5 @@
-"""Docs that run: every code block of README.md and every script in examples/ (small sizes)."""
+"""Docs that run: every code block of README.md and every script in examples/ (small sizes).
+The runs are acceptance tests (``pytest -m acceptance``, which CI runs after the default suite)."""
 
 import os
 import re
@@ -57,6 +58,7 @@ def test_the_first_bash_block_is_the_ci_commands():
     assert ci[-1] == "python -m pytest -n 2 -m acceptance" and "`python -m pytest -n 2 -m acceptance`" in README
 
 
+@pytest.mark.acceptance
 @pytest.mark.parametrize("index", [i for i, (lang, _) in enumerate(BLOCKS) if lang == "python"])
 def test_readme_python_blocks_run(index):
     run = subprocess.run([sys.executable, "-c", BLOCKS[index][1]], capture_output=True, text=True,
@@ -64,6 +66,7 @@ def test_readme_python_blocks_run(index):
     assert run.returncode == 0, run.stderr
 
 
+@pytest.mark.acceptance
 def test_readme_command_lines_run_at_a_small_size(tmp_path):
     (tmp_path / "examples").symlink_to(ROOT / "examples")
     lines = [c for lang, block in BLOCKS[1:] if lang == "bash" for c in commands(block)]
@@ -77,6 +80,7 @@ def test_readme_command_lines_run_at_a_small_size(tmp_path):
     assert (tmp_path / "results" / "beam_solved" / "solve.json").is_file()
 
 
+@pytest.mark.acceptance
 @pytest.mark.parametrize("script", sorted(p.name for p in (ROOT / "examples").glob("*.py")))
 def test_every_example_runs_at_a_small_size(script, tmp_path):
     assert script in EXAMPLE_ARGS, f"add {script}'s arguments to EXAMPLE_ARGS"

@@ -107,6 +107,7 @@ def test_non_discreteness_is_zero_for_black_and_white_and_100_for_grey():
     assert non_discreteness(np.full(7, 0.5)) == pytest.approx(100.0)
 
 
+@pytest.mark.acceptance
 def test_double_pipe_gives_two_separate_pipes(tmp_path):
     """Borrvall-Petersson, length 1: the fluid forms two straight pipes, solid between them."""
     scene = tofsi.load_scene(scene_path("double_pipe"), ["mesh.h_min=0.05", "mesh.h_max=0.05",
