@@ -19,8 +19,8 @@ def tofsi(*args, cwd=None):
 
 
 @pytest.mark.parametrize("name", ALL_SCENES)
-def test_mesh_json_reports_node_and_element_counts(name, tmp_path):
-    run = tofsi("mesh", scene_path(name), "--output", tmp_path, "--json")
+def test_mesh_json_reports_node_and_element_counts(name, cli, tmp_path):
+    run = cli("mesh", scene_path(name), "--output", tmp_path, "--json")
     assert run.returncode == 0, run.stderr
     figures = json.loads(run.stdout)
     scene = load(name)
@@ -54,8 +54,8 @@ def test_unknown_option_exits_2_in_one_line():
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
 
 
-def test_default_output_is_results_scene_name_under_the_working_directory(tmp_path):
-    run = tofsi("mesh", scene_path("foil_in_channel"), cwd=tmp_path)
+def test_default_output_is_results_scene_name_under_the_working_directory(cli, tmp_path):
+    run = cli("mesh", scene_path("foil_in_channel"), cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "results" / "foil_in_channel" / "mesh.vtu").is_file()
 
@@ -66,9 +66,9 @@ def test_console_script_is_installed():
     assert run.returncode == 0 and "mesh" in run.stdout and "move" in run.stdout
 
 
-def test_mesh_vtu_is_readable_by_an_independent_reader(tmp_path):
+def test_mesh_vtu_is_readable_by_an_independent_reader(cli, tmp_path):
     pv = pytest.importorskip("pyvista")
-    assert tofsi("mesh", scene_path("beam_in_channel"), "--output", tmp_path).returncode == 0
+    assert cli("mesh", scene_path("beam_in_channel"), "--output", tmp_path).returncode == 0
     grid = pv.read(tmp_path / "mesh.vtu")
     scene = load("beam_in_channel")
     mesh = build_mesh(scene.geometry, scene.mesh)

@@ -83,15 +83,15 @@ def test_resume_without_a_checkpoint_is_an_input_error(tmp_path):
         run(tmp_path / "none", resume=True)
 
 
-def test_tofsi_optimize_writes_only_into_its_output_folder(tmp_path):
+def test_tofsi_optimize_writes_only_into_its_output_folder(cli, tmp_path):
     work = tmp_path / "work"
     work.mkdir()
     before = set(os.listdir(scene_path("beam_in_channel_optimization").parent))
-    args = [sys.executable, "-m", "tofsi.cli", "optimize", str(scene_path("beam_in_channel_optimization")),
-            "--output", "out", "--json", "--set", "optimizer.output_every=5"]
+    args = ["optimize", scene_path("beam_in_channel_optimization"), "--output", "out", "--json",
+            "--set", "optimizer.output_every=5"]
     for o in TINY:
         args += ["--set", o]
-    proc = subprocess.run(args, capture_output=True, text=True, cwd=work)
+    proc = cli(*args, cwd=work)
     assert proc.returncode == 0, proc.stderr
     assert os.listdir(work) == ["out"]
     assert set(os.listdir(scene_path("beam_in_channel_optimization").parent)) == before

@@ -2,8 +2,6 @@
 
 import csv
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -65,11 +63,9 @@ def test_read_csv_restores_what_write_csv_wrote(tmp_path):
     assert back[1]["value"] == 30.0 and back[1]["default"] is False
 
 
-def test_tofsi_study_sweeps_stiffening_and_reports_the_best(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "study", str(scene_path("foil_in_channel")),
-                          "--set", "mover.name=linear", "--set", "mesh.h_min=0.025",
-                          "--sweep", "mover.layers[0]=1:4:3", "--output", str(tmp_path), "--json"],
-                         capture_output=True, text=True)
+def test_tofsi_study_sweeps_stiffening_and_reports_the_best(cli, tmp_path):
+    run = cli("study", scene_path("foil_in_channel"), "--set", "mover.name=linear", "--set", "mesh.h_min=0.025",
+              "--sweep", "mover.layers[0]=1:4:3", "--output", tmp_path, "--json")
     assert run.returncode == 0, run.stderr
     figures = json.loads(run.stdout)
     rows = list(csv.DictReader(open(tmp_path / "study.csv")))
