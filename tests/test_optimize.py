@@ -124,7 +124,7 @@ def test_double_pipe_gives_two_separate_pipes(tmp_path):
     assert result["constraint"] <= 1e-3
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_default_beam_in_channel_scene_end_to_end(tmp_path):
     """Issue acceptance on the shipped scene through the command line (about two minutes):
     the objective falls, the volume holds within 1 % of the bound, the design is nearly
@@ -142,7 +142,7 @@ def test_default_beam_in_channel_scene_end_to_end(tmp_path):
     assert {"convergence.png", "design_final.png", "design_series.pvd"} <= set(os.listdir(tmp_path))
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_double_pipe_objective_lies_between_the_published_values(tmp_path):
     """Full 50 x 50 double pipe (about a minute): two pipes, and a dissipation between
     topFlow's 22.0956 and Borrvall-Petersson's 25.67 (different meshes and discretizations)."""
