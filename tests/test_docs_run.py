@@ -55,7 +55,9 @@ def test_the_first_bash_block_is_the_ci_commands():
     assert (ROOT / "examples" / "optimize_fsi.py").is_file()
     # then the acceptance tests, as README's text below the block says
     ci = (ROOT / ".ci" / "run").read_text().strip().splitlines()
-    assert ci[-1] == "python -m pytest -n 2 -m acceptance" and "`python -m pytest -n 2 -m acceptance`" in README
+    assert "python -m pytest -n 2 -m acceptance" in ci and "`python -m pytest -n 2 -m acceptance`" in README
+    # and last the PETSc tests on two ranks (.ci/petsc installs Debian's PETSc or says why it skips)
+    assert ci[-1] == "bash .ci/petsc" and ci.index("python -m pytest -n 2 -m acceptance") < len(ci) - 1
 
 
 @pytest.mark.acceptance
