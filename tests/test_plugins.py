@@ -9,6 +9,8 @@ that does not exist. Through the command line, in fresh processes:
   run ``tofsi optimize``;
 * the broken plugin leaves every scene that does not use it working, and a scene that names
   one of its entries exits 2 with one line naming the entry point.
+
+The three runs through ``check-gradients`` and ``optimize`` are acceptance tests (``-m acceptance``).
 """
 
 import json
@@ -234,6 +236,7 @@ def check_and_optimize(plugins, tmp_path, scene, *overrides, stage=None):
     return figures, tmp_path / "opt"
 
 
+@pytest.mark.acceptance
 def test_an_objective_with_a_parameter_from_an_entry_point(plugins, tmp_path):
     _, out = check_and_optimize(plugins, tmp_path, "double_pipe", "design.objective=pressure-norm",
                                 "objective.pressure-norm.p=4")
@@ -253,6 +256,7 @@ def test_an_objective_with_a_parameter_from_an_entry_point(plugins, tmp_path):
     assert "[objective.pressure-norm]" in record["scene"] and "p = 4.0" in record["scene"]
 
 
+@pytest.mark.acceptance
 def test_a_mover_from_an_entry_point(plugins, tmp_path):
     """Two-way from the first iteration (a stiffer structure than the scene's, so that the gray
     start moves the mesh by what a linear mover follows), the plugin's parameter table used."""
@@ -264,6 +268,7 @@ def test_a_mover_from_an_entry_point(plugins, tmp_path):
     assert all(h["coupling"] == "two-way" and h["min_skewness"] < 1.0 for h in history)   # the mesh moved
 
 
+@pytest.mark.acceptance
 def test_a_field_with_its_own_table_and_objective_from_entry_points(plugins, tmp_path):
     figures, out = check_and_optimize(plugins, tmp_path, "double_pipe", "tracer.enabled=true", "tracer.gain=2.0",
                                       "design.objective=tracer-energy")
