@@ -31,7 +31,8 @@ def taylor_test(f, x: np.ndarray, gradient: np.ndarray, direction: np.ndarray,
     slope = float(np.dot(gradient, direction))
     eps = [eps0 / 2**k for k in range(steps)]
     rem = [abs(f(x + e * direction) - f0 - e * slope) for e in eps]
-    rates = [float(np.log2(rem[k] / rem[k + 1])) if rem[k + 1] > 0 else np.inf for k in range(steps - 1)]
+    rates = [float(np.log2(rem[k] / rem[k + 1])) if rem[k] > 0 and rem[k + 1] > 0 else np.inf
+             for k in range(steps - 1)]              # a remainder of exactly 0: round-off of a linear map
     return TaylorResult(eps, rem, rates, float(min(rates)))
 
 
@@ -49,7 +50,8 @@ def _scalar_taylor(f, z, slope, direction, eps0=1e-2, steps=5):
     f0 = f(z)
     eps = [eps0 / 2**k for k in range(steps)]
     rem = [abs(f(z + e * direction) - f0 - e * slope) for e in eps]
-    rates = [float(np.log2(rem[k] / rem[k + 1])) if rem[k + 1] > 0 else np.inf for k in range(steps - 1)]
+    rates = [float(np.log2(rem[k] / rem[k + 1])) if rem[k] > 0 and rem[k + 1] > 0 else np.inf
+             for k in range(steps - 1)]              # a remainder of exactly 0: round-off of a linear map
     return eps, rem, rates
 
 
