@@ -365,6 +365,7 @@ def test_a_second_run_into_a_busy_folder_exits_2_naming_the_first(tmp_path):
         lines = second.stderr.strip().splitlines()
         assert second.returncode == 2 and len(lines) == 1, second.stderr
         assert f"in use by tofsi optimize (pid {first.pid} on host" in lines[0]
+        wait_for(tmp_path / "out" / "run.json")    # a run stopped before its first write leaves no record
     finally:
         first.send_signal(signal.SIGTERM)
         status = first.wait()
