@@ -6,7 +6,8 @@ numerical failure (a diagnostic file is written to the output folder), 4 a
 result file could not be written (disk full, a file-size limit: one line
 naming the file, the reason and the complete files kept; ``run.json`` says
 ``"status": "write failure"``), 5 a result that is no physical state
-(``solve``: a small-strain displacement beyond the channel; written, with
+(``solve``'s state or ``optimize``'s final one: a displacement beyond the
+channel's length or height, or the solid moved out of it; written, with
 ``physical: false``), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM,
 handled like Ctrl-C).
 
@@ -104,10 +105,12 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "optimize":
             p.add_argument("--resume", action="store_true",
                            help="continue exactly where an interrupted run in --output stopped")
-        if name == "solve":
+        if name in ("solve", "optimize"):
             p.add_argument("--allow-unphysical", action="store_true",
-                           help="accept a one-way small-strain state whose displacement exceeds the "
-                                "channel (exit 0 with a warning; without it: exit 5)")
+                           help="accept a (final) state whose structure leaves the channel or moves "
+                                "more than its length or height (exit 0 with a warning; without it: "
+                                "exit 5)")
+        if name == "solve":
             p.add_argument("--stage", default="0", metavar="N|last",
                            help="continuation stage whose projection, SIMP penalty and Brinkman q "
                                 "apply (default 0: optimize's first iteration from this design; "

@@ -62,6 +62,7 @@ from tofsi.blocks import Continuation
 from tofsi.checkpoint import read_stage, write_checkpoint
 from tofsi.coupled import continuation
 from tofsi.errors import InputError, NumericalError
+from tofsi.finite import require_finite
 from tofsi.nlopt_stage import INITIAL_STEP, run_stage, settled
 from tofsi.oc import oc_step
 from tofsi.output import atomic_write, write_csv, write_json
@@ -91,6 +92,23 @@ class Iteration:
     fallbacks: int = 0                         # failed trial designs so far in the run
     load_steps: int = 0                        # steps of the inflow ramp this evaluation took (0: none)
     load_cutbacks: int = 0
+
+    def row(self) -> dict:
+        """The history row: NaN where a quantity does not apply (the mesh did not move, no
+        skewness bound) becomes None (a blank CSV cell, JSON null); every other value is finite."""
+        row = asdict(self)
+        for key in NOT_APPLICABLE:
+            if row[key] != row[key]:
+                row[key] = None
+        return row
+
+    @classmethod
+    def from_row(cls, row: dict) -> "Iteration":
+        """The inverse of :meth:`row` (a checkpoint's history)."""
+        return cls(**{k: float("nan") if v is None and k in NOT_APPLICABLE else v for k, v in row.items()})
+
+
+NOT_APPLICABLE = ("min_skewness", "min_area_change", "max_area_change", "skewness_constraint")
 
 
 class TrialFailed(Exception):
@@ -164,12 +182,16 @@ class Optimizer:
         try:
             f, df = p.evaluate(gamma)
             g, dg = p.constraints(gamma)
+            state = p.solve(gamma)
+            volume = p.volume_fraction.value(p.model, state)
+            require_finite({p.scene.design.objective: f, "objective gradient": df, "constraints": g,
+                            "constraint gradients": dg, "volume": volume, "state": state.fields},
+                           f"design iteration {len(self.history)}")
         except NumericalError as err:
             return {"gamma": gamma.copy(), "failed": True, "error": str(err), "diagnostic": err.diagnostic}
-        state = p.solve(gamma)
         ramp = state.reports.get("load_ramp", {})
         return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
-                "volume": p.volume_fraction.value(p.model, state), "quality": mesh_quality(p.model.mesh, state),
+                "volume": volume, "quality": mesh_quality(p.model.mesh, state),
                 "ramp": (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))),
                 "state": state.data()}             # the record: fields, no factorizations held
 
@@ -210,7 +232,7 @@ class Optimizer:
         if resume:
             meta, replay, state = read_stage(self.checkpoint_path, p)
             skip = meta["history"][-1]["iteration"] + 1 - sum(not e.get("failed") for e in replay)
-            self.history = [Iteration(**h) for h in meta["history"][:skip]]
+            self.history = [Iteration.from_row(h) for h in meta["history"][:skip]]
             self.fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
             record = lambda r: None if r is None else Continuation(**r)
             stage = meta["stage"]
@@ -375,7 +397,8 @@ class Optimizer:
         return oc_step(gamma, entry["df"], dvolume, p.phase_fraction, d.volume_fraction, solid, move)
 
     def _write_history(self) -> None:
-        rows = [asdict(h) for h in self.history]
+        rows = [h.row() for h in self.history]
+        require_finite(rows, "the history")
         write_csv(self.output / "history.csv", rows)
         write_json(self.output / "history.json", rows)
 
@@ -399,6 +422,12 @@ class Optimizer:
                    "fallbacks": self.fallbacks,
                    "stage": self.history[-1].stage if self.history else 0,     # of these figures
                    **p.model.figures(state)}
+        structure = p.model.structure
+        beyond = "" if structure is None else structure.displacement_beyond_channel(state.u, state.rho)
+        figures["physical"] = not beyond                 # else the reason (exit 5 on the command line)
+        if beyond:
+            figures["unphysical"] = beyond
+        require_finite(figures, f"the final design (after design iteration {len(self.history) - 1})")
         self._write_history()
         self._write_design(gamma)
         write_json(self.output / "result.json", figures)

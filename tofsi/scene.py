@@ -152,6 +152,12 @@ def _check_across_tables(scene: Scene) -> None:
     if scene.design.structure_model and effects.structure == "none":
         raise InputError("design.structure_model", list(scene.design.structure_model),
                          "a structure model per stage needs a structure (effects.structure)")
+    moves = two_way and effects.structure != "none" and (not scene.design.coupling
+                                                           or "two-way" in scene.design.coupling)
+    if scene.has_design and scene.design.min_skewness > -1 and not moves:      # coupled.two_way_stages
+        raise InputError("design.min_skewness", scene.design.min_skewness, "bounds the skewness of the moved "
+                         "fluid mesh, but no stage of this scene moves it (no two-way stage: effects.coupling "
+                         "= \"two-way\" with a mover, and a two-way entry in design.coupling); -1 (no bound)")
     if scene.optimizer.algorithm == "OC" and scene.design.min_skewness > -1:
         raise InputError("optimizer.algorithm", "OC", "MMA or CCSAQ with design.min_skewness (the "
                          "optimality-criteria update handles one volume bound only)")

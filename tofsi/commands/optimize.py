@@ -7,6 +7,7 @@ import sys
 import numpy as np
 
 from tofsi import quality
+from tofsi.commands.solve import UNPHYSICAL
 from tofsi.optimize import Optimizer
 from tofsi.output import atomic_write, write_vtu
 from tofsi.plotting import plot_convergence, plot_design, region_outlines
@@ -20,23 +21,25 @@ class Pictures:
     Each design VTU carries, per element, the physical density ``density`` (rho),
     the design variables ``design_variable`` (gamma), the filtered densities
     ``filtered_density`` (before projection), the objective's sensitivity
-    ``sensitivity`` (df/dgamma) -- the last three are NaN outside the design
-    region -- the region tag, and where the fluid mesh moved (two-way stages) its
-    per-element ``skewness`` and ``area_change``.
+    ``sensitivity`` (df/dgamma) -- outside the design region, where there are no
+    design variables, the first two hold the element's fixed density and the
+    sensitivity is 0 (no file holds a NaN) -- the region tag, and where the fluid
+    mesh moved (two-way stages) its per-element ``skewness`` and ``area_change``.
     """
 
     def __init__(self, ctx, problem):
         self.ctx, self.problem, self.series = ctx, problem, []
 
-    def design_fields(self, gamma) -> dict:
-        """Per-element design fields (NaN outside the design region)."""
+    def design_fields(self, gamma, rho) -> dict:
+        """Per-element design fields (outside the design region: the fixed density ``rho``, and
+        a sensitivity of 0)."""
         p = self.problem
         design = p.map.design
         fields = {}
         _, df = p.evaluate(gamma)                        # cached: computed by the optimizer
-        for name, values in (("design_variable", gamma), ("filtered_density", p.map.filter.forward(gamma)),
-                             ("sensitivity", df)):
-            full = np.full(p.model.mesh.n_elements, np.nan)
+        for name, values, outside in (("design_variable", gamma, rho), ("sensitivity", df, 0.0),
+                                      ("filtered_density", p.map.filter.forward(gamma), rho)):
+            full = np.zeros(p.model.mesh.n_elements) + outside
             full[design] = values
             fields[name] = full
         return fields
@@ -54,7 +57,7 @@ class Pictures:
         when = "final design" if iteration == "final" else f"design at iteration {iteration}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
                     title=f"{p.scene.name}: {when} ({stage})", outlines=region_outlines(mesh.quads, mesh.region))
-        cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma)}
+        cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma, state.rho)}
         if state.x is not None:                                  # the moved fluid mesh's quality
             cells["skewness"] = quality.skewness(X, mesh.quads)
             cells["area_change"] = quality.area_change(mesh.points, X, mesh.quads)
@@ -106,6 +109,13 @@ def run(scene, args, ctx) -> dict:
     ctx.begin()
     figures = optimizer.run(resume=args.resume)
     ctx.extra["stop_reason"] = figures["stop_reason"]
+    if not figures["physical"]:                      # written, flagged, exit 5 unless accepted
+        ctx.warn(f"the final design's state is no physical state: {figures['unphysical']}"
+                 + ("" if args.allow_unphysical else
+                    f"; exit status {UNPHYSICAL} (--allow-unphysical accepts these figures)"))
+        if not args.allow_unphysical:
+            ctx.exit_status = UNPHYSICAL
+    figures["warnings"] = ctx.extra.get("warnings", [])
     plot_convergence(ctx.output / "convergence.png", [h.__dict__ for h in optimizer.history],
                      title=f"{scene.name}: {d.objective}", objective_label=problem.objective.axis_label())
     ctx.say(f"final {d.objective} {figures['objective']:.6g}, volume {figures['volume']:.4f} "

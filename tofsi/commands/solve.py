@@ -24,6 +24,7 @@ from tofsi.commands.context import stage_index
 from tofsi.coupled import CoupledModel, continuation
 from tofsi.errors import InputError
 from tofsi.fields import Picture, state_points
+from tofsi.finite import require_finite
 from tofsi.output import write_json, write_vtu
 from tofsi.plotting import plot_mesh, plot_nodal, region_outlines
 from tofsi.problem import Problem
@@ -98,9 +99,9 @@ def run(scene, args, ctx) -> dict:
         state = model.solve(rho, params=None if problem is None else problem.params)
     warnings, physical = [], True
     if model.structure is not None and state.x is not None:      # the mesh moved with it
-        model.structure.check_displacement(state.u)
+        model.structure.check_displacement(state.u, state.rho)
     elif model.structure is not None:                # one-way: the answer, flagged
-        beyond = model.structure.displacement_beyond_channel(state.u)
+        beyond = model.structure.displacement_beyond_channel(state.u, state.rho)
         if beyond:
             physical = False
             strain = "finite-strain" if model.structure.nonlinear(state.params) else "small-strain"
@@ -121,6 +122,7 @@ def run(scene, args, ctx) -> dict:
     flow = state.reports.get("flow")
     if flow:
         figures["newton_iterations"] = flow["newton_iterations"]
+    require_finite(figures, "solve")
     for key in [k for field in model.fields for k in field.summary] + ["objective", "volume"]:
         if key in figures:
             ctx.say(f"  {key.replace('_', ' '):22s} {figures[key]:.6g}")

@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import logging
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import nlopt
@@ -37,6 +36,7 @@ import numpy as np
 
 from tofsi.coupled import continuation
 from tofsi.errors import InputError
+from tofsi.finite import require_finite
 from tofsi.nlopt_stage import ALGORITHMS, INITIAL_STEP, run_stage, settled
 from tofsi.optimize import Iteration, non_discreteness
 from tofsi.output import atomic_write, write_csv, write_json
@@ -149,7 +149,8 @@ class DistributedOptimizer:
             self.on_iteration(it, point)
 
     def _write_history(self) -> None:
-        rows = [asdict(h) for h in self.history]
+        rows = [h.row() for h in self.history]
+        require_finite(rows, "the history")
         write_csv(self.output / "history.csv", rows)
         write_json(self.output / "history.json", rows)
 
@@ -162,6 +163,7 @@ class DistributedOptimizer:
                    "ranks": self.mpi.size, "elements": p.model.mesh.n_elements,
                    "evaluations_computed": self.problem.evaluations,
                    "wall_time_s": time.perf_counter() - self._t0}
+        require_finite(figures, "the final design")
         self._write_history()
         atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))
         write_json(self.output / "result.json", figures)
