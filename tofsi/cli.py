@@ -111,7 +111,11 @@ def build_parser() -> argparse.ArgumentParser:
                                 "more than its length or height (exit 0 with a warning; without it: "
                                 "exit 5)")
         if name == "solve":
-            p.add_argument("--stage", default="0", metavar="N|last",
+            p.add_argument("--from", dest="from_run", type=Path, default=None, metavar="RUN",
+                           help="start from the final state of the tofsi optimize run in folder RUN "
+                                "(its final_state.npz), with its design and stage unless --design or "
+                                "--stage say otherwise: reproduces its result.json")
+            p.add_argument("--stage", default=None, metavar="N|last",
                            help="continuation stage whose projection, SIMP penalty and Brinkman q "
                                 "apply (default 0: optimize's first iteration from this design; "
                                 "result.json's stage: that run's final figures; last: the "
@@ -157,8 +161,11 @@ def sigterm_as_interrupt():
 def scene_overrides(args) -> list[str]:
     """``--set`` values, plus ``--design FILE`` as ``design.initial``."""
     overrides = list(args.set)
-    if getattr(args, "design", None) is not None:
-        overrides.append(f"design.initial={json.dumps(str(args.design))}")
+    design = getattr(args, "design", None)
+    if design is None and getattr(args, "from_run", None) is not None:
+        design = args.from_run / "design.npy"          # --from RUN: its design, unless --design
+    if design is not None:
+        overrides.append(f"design.initial={json.dumps(str(design))}")
     return overrides
 
 
@@ -167,6 +174,15 @@ def check_options(args) -> None:
     gb = args.max_memory
     if gb is not None and not (math.isfinite(gb) and gb > 0):
         raise InputError("--max-memory", gb, "allowed: a memory limit in GB > 0")
+    run = getattr(args, "from_run", None)
+    if run is not None:                            # before its design.npy is read as design.initial
+        from tofsi.final_state import FILE
+        if not run.is_dir():
+            raise InputError("--from", str(run), "no such folder (give the --output folder of a tofsi "
+                             "optimize run)")
+        if not (run / FILE).is_file():
+            raise InputError("--from", str(run), f"holds no {FILE}: a tofsi optimize run writes it when it "
+                             "finishes (an interrupted run: finish it with --resume)")
     if getattr(args, "resume", False) and args.overwrite:
         raise InputError("--resume", True, "cannot go with --overwrite (--resume continues the run "
                          "in --output, --overwrite replaces it); give one of them")

@@ -62,6 +62,7 @@ from tofsi.blocks import Continuation
 from tofsi.checkpoint import read_stage, write_checkpoint
 from tofsi.coupled import continuation
 from tofsi.errors import InputError, NumericalError
+from tofsi.final_state import FILE as FINAL_STATE, write_final_state
 from tofsi.finite import require_finite
 from tofsi.nlopt_stage import INITIAL_STEP, run_stage, settled
 from tofsi.oc import oc_step
@@ -430,6 +431,7 @@ class Optimizer:
         require_finite(figures, f"the final design (after design iteration {len(self.history) - 1})")
         self._write_history()
         self._write_design(gamma)
+        write_final_state(self.output / FINAL_STATE, p, gamma, state, figures["stage"])    # to re-solve it
         write_json(self.output / "result.json", figures)
         if self.on_picture:
             self.on_picture("final", gamma, state)

@@ -43,7 +43,7 @@ RUN_FILE = "run.json"
 # Every name a tofsi command or example writes (a previous run's files without a run.json).
 OUTPUT_PATTERNS = ("run.json", "diagnostic.json", "mesh.vtu", "mesh.png", "moved_mesh.*", "failed_mesh.*",
                    "move.json", "solve.json", "solution.vtu", "solution_*.png", "design_*.png",
-                   "design_*.vtu", "design_series.pvd", "design.npy", "checkpoint.npz", "history.csv",
+                   "design_*.vtu", "design_series.pvd", "design.npy", "checkpoint.npz", "final_state.npz", "history.csv",
                    "history.json", "result.json", "convergence.png", "check_gradients.json",
                    "study.csv", "study.json", "study.png")
 RESERVE_FILE = ".tofsi-reserve"

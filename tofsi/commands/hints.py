@@ -32,6 +32,10 @@ def hint(err, scene, command: str = "") -> str:
         return ("the two-way coupled solve failed on the uniform gray design (too soft for the "
                 "flow's load); start the schedule one-way (design.coupling = [\"one-way\", ..., "
                 "\"two-way\"]) or from a saved design: --set design.initial=FILE")
+    if command == "solve" and diagnostic.get("cold_start"):
+        return ("a cold solve starts from rest and ramps the inflow; a design tofsi optimize reached along "
+                "its warm-start path may need that path: --from RUN (the run's --output folder) starts from "
+                "its final state")
     if command == "solve" and scene.has_design and message.startswith("structure: displacement"):
         return ("the structure is held, but this design is far too soft for the flow's load "
                 "(a gray starting design of a soft scene); solve a designed structure: "
