@@ -703,3 +703,111 @@ def test_physicality_covers_every_direction_and_the_channel_walls():
     assert structure.displacement_beyond_channel(u, rho) == ""  # 5 cm at the wall's top: physical
     u[3, 1] = np.inf
     assert "not finite at 1 node" in structure.displacement_beyond_channel(u, rho)
+
+
+# ---- issue 35, items 2 and 3; issue 36, item 4: no traceback from any entry point ---------------
+def modules_with_main() -> set[str]:
+    """Every ``tofsi.*`` module that defines a ``main`` (what ``python -m`` can run)."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    return {".".join(p.relative_to(root).with_suffix("").parts) for p in (root / "tofsi").rglob("*.py")
+            if "\ndef main(" in p.read_text()}
+
+
+def entry_points():
+    """``(module, leading arguments)``: each tofsi subcommand, and every other module with a main."""
+    from tofsi.cli import COMMANDS
+    walk = {"tofsi.cli": [[c] for c in COMMANDS], "tofsi.parallel.optimize_flow": [[]]}
+    assert set(walk) == modules_with_main(), "add the new module's arguments to the walk"
+    return [(m, lead) for m, leads in walk.items() for lead in leads]
+
+
+def scene_for(lead) -> str:
+    return FOIL if lead and lead[0] in ("mesh", "move", "tune", "study") else OPT
+
+
+def run_main(module, argv, capsys):
+    import importlib
+    capsys.readouterr()
+    status = importlib.import_module(module).main([str(a) for a in argv])
+    return status, capsys.readouterr().err
+
+
+BAD_ARGUMENTS = {"missing scene": lambda lead: ["nowhere.toml"],
+                 "bad --set": lambda lead: [scene_for(lead), "--set", "mesh.h_mni=0.1"],
+                 "nested --set": lambda lead: [scene_for(lead), "--set", "mover.layers=" + "[" * 3000 + "]" * 3000]}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_ARGUMENTS))
+@pytest.mark.parametrize("module,lead", entry_points(), ids=lambda v: v if isinstance(v, str) else " ".join(v))
+def test_every_entry_point_answers_bad_input_in_one_line(module, lead, case, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    extra = ["--sweep", "mover.layers[0]=1:2:1"] if lead == ["study"] else []
+    status, err = run_main(module, [*lead, *BAD_ARGUMENTS[case](lead), *extra, "--output", "out"], capsys)
+    lines = err.strip().splitlines()
+    assert status == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert {"missing scene": "no such file", "bad --set": "mesh.h_mni",
+            "nested --set": "nested more than 16"}[case] in lines[0]
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("module,lead", [e for e in entry_points() if e[1] != ["mesh"]],
+                         ids=lambda v: v if isinstance(v, str) else " ".join(v))
+def test_every_entry_point_names_a_missing_optional_package_with_its_install_hint(module, lead, capsys, tmp_path,
+                                                                                  monkeypatch):
+    """petsc4py made unimportable (the distributed driver needs it; the others for the petsc
+    backend): one line, exit 2, the install hint. (``tofsi mesh`` solves nothing.)"""
+    import sys
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setitem(sys.modules, "petsc4py", None)
+    extra = ["--sweep", "mover.layers[0]=1:2:1"] if lead == ["study"] else []
+    status, err = run_main(module, [*lead, scene_for(lead) if lead else str(scene_path("double_pipe")),
+                                    "--set", "solver.linear_solver=petsc", *extra, "--output", "out"], capsys)
+    lines = err.strip().splitlines()
+    assert status == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert "petsc4py does not import" in lines[0] and "python3-petsc4py-real" in lines[0]
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("command,overrides,says", [
+    ("mesh", ["name=\udcff"], "undecodable byte (not UTF-8), the byte 0xff"),        # UnicodeEncodeError
+    ("mesh", ["name=a\u200bb"], "invisible character, U+200B ZERO WIDTH SPACE"),      # accepted before
+    ("mesh", ["name=a\u2028b"], "line separator"),
+    ("mesh", ["--output", "t\udcff"], "undecodable byte"),
+    ("mesh", ["--output", "a\u200bb/c"], "invisible character"),
+    ("check-gradients", ["--seed", "-1"], "--seed"),                                    # ValueError
+    ("solve", ["solver.linear_solver=iterative", "fluid.element=q1q1"], "fluid.element"),   # KeyError
+    ("solve", ["fluid.alpha_max=1e300"], "fluid.alpha_max"),                            # ValueError
+    ("optimize", ["optimizer.max_iter=100000000"], "optimizer.max_iter"),              # 1.2 GB to refuse
+    ("optimize", ["optimizer.max_iter=1000000000"], "optimizer.max_iter"),
+    ("optimize", ["design.stage_iterations=100000000"], "design.stage_iterations"),
+    ("solve", ["coupled.min_load_step=1e-300"], "coupled.min_load_step"),              # ran for hours
+])
+def test_limits_and_names_refused_in_one_line(command, overrides, says, cli, tmp_path):
+    """Issues 35/36: tracebacks (undecodable names, negative seeds, q1q1 on the iterative path,
+    alpha_max 1e300), invisible names accepted, resource limits found late or never."""
+    import time
+    args = [command, FOIL if command == "mesh" else OPT]
+    extra = list(overrides)
+    while extra:
+        item = extra.pop(0)
+        args += [item, extra.pop(0)] if item.startswith("--") else ["--set", item]
+    if "--output" not in args:
+        args += ["--output", "out"]
+    t0 = time.perf_counter()
+    run = cli(*args, cwd=tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert says in lines[0] and time.perf_counter() - t0 < 30
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_deeply_nested_scene_file_is_refused(cli, tmp_path):
+    """A scene nested thousands deep ended in RecursionError (tomllib), hundreds deep in the
+    copy of the scene."""
+    (tmp_path / "deep.toml").write_text("name = 'x'\nx = " + "[" * 3000 + "]" * 3000 + "\n")
+    (tmp_path / "deeper.toml").write_text("name = 'x'\n[a]\nx = " + "[" * 400 + "]" * 400 + "\n")
+    for scene, says in (("deep.toml", "scene = "), ("deeper.toml", "a.x[0][0]")):
+        run = cli("mesh", tmp_path / scene, "--output", tmp_path / "out")
+        lines = run.stderr.strip().splitlines()
+        assert run.returncode == 2 and len(lines) == 1 and says in lines[0] and "nested more than 16" in lines[0]

@@ -174,6 +174,9 @@ def check_options(args) -> None:
     gb = args.max_memory
     if gb is not None and not (math.isfinite(gb) and gb > 0):
         raise InputError("--max-memory", gb, "allowed: a memory limit in GB > 0")
+    seed = getattr(args, "seed", None)
+    if seed is not None and not 0 <= seed < 2**63:
+        raise InputError("--seed", seed, "allowed: a whole number from 0 to 2^63 - 1")
     run = getattr(args, "from_run", None)
     if run is not None:                            # before its design.npy is read as design.initial
         from tofsi.final_state import FILE

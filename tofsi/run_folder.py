@@ -27,11 +27,11 @@ import json
 import logging
 import os
 import tempfile
-import unicodedata
 from pathlib import Path
 
 from tofsi.errors import InputError, WriteError
 from tofsi.folder_lock import FolderLock
+from tofsi.names import unreadable
 from tofsi.output import write_json
 from tofsi.output_size import RESERVE, file_size_limit
 from tofsi.provenance import now
@@ -73,9 +73,9 @@ def check_names(real: Path, existing: Path, key: str, shown: str) -> None:
     ``real`` fits in PATH_MAX."""
     name_max = _limit(existing, "PC_NAME_MAX", 255)
     for part in real.relative_to(existing).parts:
-        if any(unicodedata.category(c) == "Cc" for c in part):
-            raise InputError(key, shown, f"has a control character (newline, tab, ...) in the folder "
-                             f"name {part!r}; choose a plain name")
+        if unreadable(part):
+            raise InputError(key, shown, f"has {unreadable(part)} in the folder name {part!r}; choose "
+                             "a name of visible characters")
         if len(part.encode()) > name_max:
             raise InputError(key, shown, f"has a folder name of {len(part.encode())} bytes; the file "
                              f"system allows at most {name_max}")

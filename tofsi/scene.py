@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import re
 import tomllib
-import unicodedata
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from tofsi.errors import InputError
+from tofsi.names import unreadable
 from tofsi.registry import OBJECTIVES, SCENE_TABLES
 
 MIN_ELEMENTS_ACROSS = 4     # mesh.h_max is at most the channel's smaller side over this
@@ -117,8 +117,10 @@ def scene_from_dict(raw: dict, source: str = "") -> Scene:
         if key not in top:
             raise InputError(key, raw[key], "unknown key; allowed keys: " + ", ".join(sorted(top)))
     name = raw.get("name")
-    if (not isinstance(name, str) or not name or any(c in name for c in "/\\")
-            or any(unicodedata.category(c) == "Cc" for c in name) or name in (".", "..")):
+    if isinstance(name, str) and unreadable(name):
+        raise InputError("name", name, f"has {unreadable(name)}: it names the output folder, which a reader "
+                         "must see and type; choose a name of visible characters")
+    if not isinstance(name, str) or not name or any(c in name for c in "/\\") or name in (".", ".."):
         raise InputError("name", name, "required: a non-empty string without slashes or control "
                          "characters (newline, tab, ...), not '.' or '..' (it names the output folder)")
     description = raw.get("description", "")
@@ -167,6 +169,23 @@ def _check_across_tables(scene: Scene) -> None:
             raise InputError("design.objective", scene.design.objective, f"needs effects.{needs}")
 
 
+MAX_DEPTH = 16      # tables and lists nested in a scene (the deepest key, geometry.solids[i][j], has 3)
+
+
+def check_depth(value, key: str) -> None:
+    """Refuse tables or lists nested deeper than ``MAX_DEPTH`` (found without recursion: a
+    value nested thousands deep would exhaust Python's stack in every later step)."""
+    level = [(key, value)]
+    for depth in range(MAX_DEPTH + 1):
+        level = [(f"{k}.{sub}" if isinstance(v, dict) else f"{k}[{i}]", item)
+                 for k, v in level if isinstance(v, (dict, list))
+                 for i, (sub, item) in enumerate(v.items() if isinstance(v, dict) else enumerate(v))]
+        if not level:
+            return
+    raise InputError(level[0][0].lstrip("."), "...", f"nested more than {MAX_DEPTH} tables or lists deep; "
+                     "a scene's values are numbers, strings, and lists of them")
+
+
 def parse_override(text: str) -> tuple[list[str], Any]:
     """``"mover.yeoh.A20=1e3"`` -> (["mover", "yeoh", "A20"], 1000.0); values are TOML."""
     key, sep, value = text.partition("=")
@@ -177,6 +196,9 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value.strip()                          # bare words are strings
+    except RecursionError:
+        raise InputError("--set", text, f"nested more than {MAX_DEPTH} lists deep") from None
+    check_depth(parsed, key)
     return key.split("."), parsed
 
 
@@ -249,13 +271,17 @@ def read_scene_file(path: str | Path) -> dict:
         raise InputError("scene", str(path), "no such file")
     try:
         text = path.read_bytes().decode("utf-8-sig")          # a byte-order mark is allowed
-        return tomllib.loads(text)
+        raw = tomllib.loads(text)
+    except RecursionError:
+        raise InputError("scene", str(path), f"nested more than {MAX_DEPTH} tables or lists deep") from None
     except PermissionError:
         raise InputError("scene", str(path), "file is not readable") from None
     except UnicodeDecodeError:
         raise InputError("scene", str(path), "not a text file (UTF-8 TOML expected)") from None
     except tomllib.TOMLDecodeError as err:
         raise InputError("scene", str(path), f"not valid TOML ({err})") from None
+    check_depth(raw, "")
+    return raw
 
 
 def load_scene(path: str | Path, overrides=None) -> Scene:
