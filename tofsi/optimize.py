@@ -202,9 +202,10 @@ class Optimizer:
             run.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
         params = self.problem.params            # the stage's record, as the problem solved with it
         g = entry["g"]
+        elapsed = entry.pop("time_s", None)            # a replayed row keeps its recorded time
         it = Iteration(len(self.history), run.stage, float(entry["f"]), float(entry["f"] / run.scale),
-                       float(entry["volume"]), float(g[0]), change, params.beta,
-                       params.penalty, params.brinkman_q, time.perf_counter() - self._t0,
+                       float(entry["volume"]), float(g[0]), change, params.beta, params.penalty,
+                       params.brinkman_q, time.perf_counter() - self._t0 if elapsed is None else elapsed,
                        params.coupling or self.scene.effects.coupling, *entry["quality"],
                        float(g[1]) if len(g) > 1 else float("nan"), self.fallbacks, *entry["ramp"])
         self.history.append(it)
@@ -215,7 +216,7 @@ class Optimizer:
             for earlier in run.log[:-1]:               # hold one state (and its factorizations)
                 earlier.pop("state", None)
             if self.on_picture and (it.iteration % self.settings.output_every == 0):
-                self.on_picture(it.iteration, gamma, entry["state"])
+                self.on_picture(it.iteration, gamma, entry["state"], entry["df"])
         if self.on_iteration:
             self.on_iteration(it)
 
@@ -234,6 +235,11 @@ class Optimizer:
             meta, replay, state = read_stage(self.checkpoint_path, p)
             skip = meta["history"][-1]["iteration"] + 1 - sum(not e.get("failed") for e in replay)
             self.history = [Iteration.from_row(h) for h in meta["history"][:skip]]
+            succeeded = [e for e in replay if not e.get("failed")]
+            for e, row in zip(succeeded, meta["history"][skip:]):
+                e["time_s"] = row["time_s"]
+            if succeeded:                  # the last one's state is the checkpoint's: its evaluation
+                succeeded[-1]["state"] = state     # is written again (a snapshot an interrupt cut short)
             self.fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
             record = lambda r: None if r is None else Continuation(**r)
             stage = meta["stage"]
@@ -433,7 +439,9 @@ class Optimizer:
         self._write_design(gamma)
         write_final_state(self.output / FINAL_STATE, p, gamma, state, figures["stage"])    # to re-solve it
         write_json(self.output / "result.json", figures)
-        if self.on_picture:
-            self.on_picture("final", gamma, state)
+        if self.on_picture:                # the gradient as recorded (a resumed run has no adjoint of it)
+            last = self.run_stage.last if self.run_stage is not None else None
+            recorded = last[1]["df"] if last is not None and np.array_equal(last[0], gamma) else None
+            self.on_picture("final", gamma, state, recorded)
         self.final_state = state
         return figures

@@ -26,6 +26,7 @@ import fnmatch
 import json
 import logging
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -135,6 +136,22 @@ def describe(record: dict | None, names: list[str]) -> str:
     return f"{len(names)} file(s) ({', '.join(names[:3])}{', ...' if len(names) > 3 else ''})"
 
 
+TEMPORARY = re.compile(r"^\.(?P<stem>.+)\.[a-z0-9_]{8}(?P<suffix>\.[A-Za-z0-9]+)?$")   # atomic_write's
+
+
+def stale_temporaries(folder: Path) -> list[Path]:
+    """Temporary files a killed run left in ``folder`` (SIGKILL skips every clean-up): the
+    ``.<name>.XXXXXXXX.<ext>`` of an output being written, the reserve and write probes."""
+    found = []
+    for p in folder.iterdir() if folder.is_dir() else ():
+        match = TEMPORARY.match(p.name)
+        ours = match and any(fnmatch.fnmatch(match["stem"] + (match["suffix"] or ""), pattern)
+                             for pattern in OUTPUT_PATTERNS)
+        if p.is_file() and (ours or p.name == RESERVE_FILE or p.name.startswith(".tofsi-probe-")):
+            found.append(p)
+    return found
+
+
 def _remove(path: Path) -> None:
     try:
         path.unlink()
@@ -181,6 +198,8 @@ class RunFolder:
         self.created = missing
         try:
             self.lock.acquire(self.key)
+            for stale in stale_temporaries(self.path):      # locked: no other run writes here
+                _remove(stale)
             names = visible_files(self.path)
             self.previous = read_record(self.path)
             listed = set((self.previous or {}).get("files", []))

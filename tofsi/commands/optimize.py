@@ -28,15 +28,16 @@ class Pictures:
     """
 
     def __init__(self, ctx, problem):
-        self.ctx, self.problem, self.series = ctx, problem, []
+        self.ctx, self.problem = ctx, problem
 
-    def design_fields(self, gamma, rho) -> dict:
+    def design_fields(self, gamma, rho, sensitivity=None) -> dict:
         """Per-element design fields (outside the design region: the fixed density ``rho``, and
-        a sensitivity of 0)."""
+        a sensitivity of 0); ``sensitivity``: the gradient the optimizer recorded for ``gamma``
+        (default: the problem's, cached from the optimizer's evaluation)."""
         p = self.problem
         design = p.map.design
         fields = {}
-        _, df = p.evaluate(gamma)                        # cached: computed by the optimizer
+        df = p.evaluate(gamma)[1] if sensitivity is None else sensitivity
         for name, values, outside in (("design_variable", gamma, rho), ("sensitivity", df, 0.0),
                                       ("filtered_density", p.map.filter.forward(gamma), rho)):
             full = np.zeros(p.model.mesh.n_elements) + outside
@@ -44,7 +45,7 @@ class Pictures:
             fields[name] = full
         return fields
 
-    def __call__(self, iteration, gamma, state) -> None:
+    def __call__(self, iteration, gamma, state, sensitivity=None) -> None:
         p, mesh = self.problem, self.problem.model.mesh
         tag = iteration if iteration == "final" else f"{iteration:04d}"
         X = mesh.points if state.x is None else mesh.points + state.mesh_displacement
@@ -57,17 +58,20 @@ class Pictures:
         when = "final design" if iteration == "final" else f"design at iteration {iteration}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
                     title=f"{p.scene.name}: {when} ({stage})", outlines=region_outlines(mesh.quads, mesh.region))
-        cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma, state.rho)}
+        cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma, state.rho, sensitivity)}
         if state.x is not None:                                  # the moved fluid mesh's quality
             cells["skewness"] = quality.skewness(X, mesh.quads)
             cells["area_change"] = quality.area_change(mesh.points, X, mesh.quads)
         write_vtu(self.ctx.output / f"{name}.vtu", X, {"quad": mesh.quads}, point_data, cells)
         if iteration != "final":
-            self.series.append((iteration, f"{name}.vtu"))
             self._collection()
 
     def _collection(self) -> None:
-        rows = "\n".join(f'    <DataSet timestep="{i}" file="{f}"/>' for i, f in self.series)
+        """The ParaView collection of every design VTU in the folder (a resumed run's earlier
+        ones too: the folder, not this process, holds the series)."""
+        found = sorted((int(p.stem[len("design_"):]), p.name) for p in self.ctx.output.glob("design_*.vtu")
+                       if p.stem[len("design_"):].isdigit())
+        rows = "\n".join(f'    <DataSet timestep="{i}" file="{f}"/>' for i, f in found)
         text = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
                 f"{rows}\n  </Collection>\n</VTKFile>\n")
         atomic_write(self.ctx.output / "design_series.pvd", lambda tmp: open(tmp, "w").write(text))
