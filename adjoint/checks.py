@@ -71,7 +71,7 @@ def round_off_floor(f, z, direction, f0: float, step: float) -> float:
 class TaylorCheck:
     """The outcome of :func:`taylor_check`: the steps and remainders measured (largest step
     first), the rates between consecutive clean ones, the rate read (at the smallest clean
-    steps; NaN when there is none), the round-off floor, and ``result``: ``"ok"``, ``"linear"``
+    steps; NaN when there is none), the round-off floor, and ``result``: ``"ok"``, ``"linear map"``
     (remainders at round-off, negligible against the slope), ``"FAILED"`` or ``"inconclusive"``
     (no two steps with the remainder ``MARGIN`` times above the floor)."""
 
@@ -105,7 +105,7 @@ def taylor_check(f, z, slope: float, direction, eps0: float = 1e-2, steps: int =
         eps.insert(0, eps[0] * GROWTH)
         rem.insert(0, remainder(eps[0]))
     if rem[0] <= LINEAR * abs(slope) * eps[0]:          # negligible against the slope: linear
-        return verdict(eps, rem, [], float("nan"), "linear")
+        return verdict(eps, rem, [], float("nan"), "linear map")
     eps, rem = eps[:1], rem[:1]                         # the largest step tried: the first clean one
     while len(eps) < steps and clean(rem[-1]):
         eps.append(eps[-1] / 2)
@@ -140,7 +140,7 @@ def check_row(name, taylor: TaylorCheck, cd: float, slope: float, h: float, cd_t
     return {"check": name, "result": result, "passed": result != "FAILED", "min_rate": taylor.rate,
             "rates": taylor.rates, "eps": taylor.eps, "remainders": taylor.remainders,
             "max_remainder": float(max(taylor.remainders)), "round_off_floor": taylor.floor,
-            "linear": taylor.result == "linear", "cd_error": float(cd_error),
+            "linear": taylor.result == "linear map", "cd_error": float(cd_error),
             "cd_round_off": float(cd_round_off)}
 
 

@@ -87,7 +87,7 @@ def test_remainders_at_the_floor_at_every_step_are_inconclusive_not_failed():
 def test_a_linear_map_at_round_off_is_linear():
     f = Noisy(1e-14, curvature=0.0)
     t = taylor_check(f, f.z, f.slope, f.d, eps0=1e-2)
-    assert t.result == "linear", t
+    assert t.result == "linear map", t
 
 
 # ---- the state of issue 35: F_x and S_x reported FAILED (rates 1.52 and 1.69) -------------------

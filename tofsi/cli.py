@@ -36,7 +36,7 @@ from pathlib import Path
 
 import tofsi
 from tofsi.commands.context import RunContext
-from tofsi.commands.hints import hint
+from tofsi.commands.hints import describe, hint
 from tofsi.errors import InputError, NumericalError, WriteError
 from tofsi.memory import check as check_memory
 from tofsi.output import default_output, to_json, write_json
@@ -294,8 +294,8 @@ def _numerical_failure(err: NumericalError, args, ctx, scene) -> int:
     quality = err.diagnostic.get("quality", {})
     payload = {"error": str(err), "converged": False, "diagnostic": str(path),
                **{k: quality[k] for k in QUALITY if k in quality}}
-    return _error(f"tofsi: numerical failure: {err}{'; ' + extra if extra else ''} (diagnostic: {path})"
-                  f"{unwritten}", payload, args.json, 3)
+    return _error(f"tofsi: numerical failure: {describe(err)}{'; ' + extra if extra else ''} "
+                  f"(diagnostic: {path}){unwritten}", payload, args.json, 3)
 
 
 def _write_failure(err: WriteError, args, ctx) -> int:

@@ -110,6 +110,7 @@ class Iteration:
 
 
 NOT_APPLICABLE = ("min_skewness", "min_area_change", "max_area_change", "skewness_constraint")
+VIOLATED = 1e-3      # a final constraint value g above this is a violated bound (result.json's "violated")
 
 
 class TrialFailed(Exception):
@@ -324,10 +325,12 @@ class Optimizer:
         diagnostic = {"iteration": len(self.history), "stage": run.stage, "fallbacks": self.fallbacks,
                       "failures_in_a_row": run.failures_in_a_row, **error.diagnostic}
         if run.last is None:
+            diagnostic["why"] = ("the stage's first design failed, so there is no good design of this stage to "
+                                 "fall back to, and no bridging stage is left (a bridge needs an earlier stage "
+                                 "whose beta, penalty or q differs by 5 % or more; at most "
+                                 "optimizer.max_failures nested per stage)")
             raise StageStartFailed(NumericalError(
-                f"{where}: the stage's first design failed, so there is no good design of this stage to fall "
-                f"back to, and no bridging stage is left (a bridge needs an earlier stage whose beta, penalty "
-                f"or q differs by 5 % or more; at most optimizer.max_failures nested per stage): {error}",
+                f"{where}: the stage's first design failed, no bridging stage left; the last: {error}",
                 diagnostic, state=error.state))
         if run.failures_in_a_row >= limit:
             raise NumericalError(f"{where}: {run.failures_in_a_row} trial designs failed in a row "
@@ -419,10 +422,13 @@ class Optimizer:
         p = self.problem
         state = p.solve(gamma)
         rho = p.densities(gamma)[p.map.design]
+        g = p.constraints(gamma)[0]
+        constraints = dict(zip(p.constraint_names(), map(float, g)))
         figures = {"scene": self.scene.name, "iterations": len(self.history),
                    "objective": float(p.evaluate(gamma)[0]),
                    "volume": float(p.volume_fraction.value(p.model, state)),
-                   "constraint": float(p.constraints(gamma)[0][0]),
+                   "constraint": float(g[0]), "constraints": constraints,
+                   "violated": {k: v for k, v in constraints.items() if v > VIOLATED},
                    "non_discreteness_percent": non_discreteness(rho),
                    "wall_time_s": time.perf_counter() - self._t0,
                    "evaluations_computed": p.evaluations, "stop_reason": self.stop_reason,

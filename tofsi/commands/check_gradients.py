@@ -104,7 +104,7 @@ def run(scene, args, ctx) -> dict:
         rate = "linear" if r["linear"] else "-" if r["min_rate"] != r["min_rate"] else f"{r['min_rate']:.3f}"
         steps = f"{min(r['eps']):.1e}-{max(r['eps']):.1e}"
         ctx.say(f"{r['check']:28s} {rate:>11s} {steps:>17s} {r['round_off_floor']:9.1e} {r['cd_error']:13.2e}  "
-                f"{'ok' if r['result'] == 'linear' else r['result']}")
+                f"{'ok' if r['linear'] else r['result']}")
     passed = all(r["passed"] for r in rows)
     inconclusive = [r["check"] for r in rows if r["result"] == "inconclusive"]
     if inconclusive:

@@ -126,6 +126,7 @@ def run(scene, args, ctx) -> dict:
             f"(constraint {figures['constraint']:.2e}), non-discreteness "
             f"{figures['non_discreteness_percent']:.1f} %, {figures['iterations']} iterations, "
             f"{figures['wall_time_s']:.0f} s; stopped: {figures['stop_reason']}"
-            + (f"; {figures['fallbacks']} fallbacks from failed trial designs" if figures["fallbacks"] else ""))
+            + (f"; {figures['fallbacks']} fallbacks from failed trial designs" if figures["fallbacks"] else "")
+            + "".join(f"; the {name} bound is violated (g = {g:+.3g} > 0)" for name, g in figures["violated"].items()))
     figures["outputs"] = sorted(str(p) for p in ctx.output.iterdir() if not p.name.startswith("."))
     return figures

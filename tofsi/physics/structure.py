@@ -209,8 +209,8 @@ class Structure:
         held, or far too soft."""
         beyond = self.displacement_beyond_channel(u, rho)
         if beyond:
-            raise NumericalError(beyond + " (no element failed): the structure is not held by "
-                                 "structure.clamped or is far too soft",
+            raise NumericalError(beyond + " (no element failed): the design is far too soft for the flow's "
+                                 "load (the mesh cannot follow it)",
                                  {"max_displacement": float(np.max(np.hypot(*u.reshape(-1, 2).T))),
                                   "channel_size": np.ptp(self.mesh.points, axis=0).tolist()})
 
