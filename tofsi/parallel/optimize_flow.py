@@ -39,7 +39,8 @@ from tofsi.coupled import continuation
 from tofsi.errors import InputError
 from tofsi.finite import require_finite
 from tofsi.nlopt_stage import ALGORITHMS, INITIAL_STEP, run_stage, settled
-from tofsi.optimize import Iteration, non_discreteness
+from tofsi.history import Iteration
+from tofsi.optimize import non_discreteness
 from tofsi.output import atomic_write, write_csv, write_json
 
 log = logging.getLogger(__name__)
