@@ -42,7 +42,7 @@ def test_move_foil_prints_each_movers_own_figures(cli, tmp_path, monkeypatch, ca
 def test_a_motion_setup_of_another_scene_is_refused():
     """The cause: a setup built for one mover, used with a scene naming another."""
     import tofsi
-    from tofsi.motion import motion_setup, run_move
+    from tofsi.coupling.motion import motion_setup, run_move
     small = ["mesh.h_min=0.1", "mesh.h_max=0.2"]
     yeoh = tofsi.load_scene(scene_path("foil_in_channel"), small)
     spring = tofsi.load_scene(scene_path("foil_in_channel"), small + ["mover.name=spring"])

@@ -14,7 +14,7 @@ import pytest
 
 from conftest import scene_path
 from tofsi.commands.hints import LIMIT, describe
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 
 FOIL = str(scene_path("foil_in_channel"))
 OPT = str(scene_path("beam_in_channel_optimization"))
@@ -80,7 +80,7 @@ def test_exit_3_lines_name_the_element_or_say_none_failed(command, scene, overri
 
 def test_a_solver_failure_without_an_element_says_none_failed(cli, tmp_path, monkeypatch):
     """The Krylov failure of issue 36 ("preconditioned Krylov solve did not converge")."""
-    from tofsi.coupled import CoupledModel
+    from tofsi.coupling.coupled import CoupledModel
 
     def krylov(self, rho, guess=None, progress=None, params=None):
         raise NumericalError("preconditioned Krylov solve did not converge", {"residuals": [1.0, 0.5]})

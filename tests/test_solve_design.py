@@ -107,8 +107,8 @@ def test_the_large_examples_design_is_re_solved_from_its_run(cli, tmp_path):
 
 
 def test_a_failed_cold_solve_of_a_design_suggests_starting_from_the_run(cli, tmp_path, monkeypatch):
-    from tofsi.coupled import CoupledModel
-    from tofsi.errors import NumericalError
+    from tofsi.coupling.coupled import CoupledModel
+    from tofsi.core.errors import NumericalError
 
     def cold(self, rho, guess=None, progress=None, params=None):
         raise NumericalError("load continuation stopped at 0.1211 of the inflow (forced)")

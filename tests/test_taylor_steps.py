@@ -103,8 +103,8 @@ def issue_state():
     import tofsi
     from conftest import scene_path
     from tofsi.commands.check_gradients import PERTURBATION, checked_scene, checked_stage
-    from tofsi.coupled import continuation
-    from tofsi.optimize import Optimizer
+    from tofsi.coupling.coupled import continuation
+    from tofsi.optimization.optimize import Optimizer
     scene = checked_scene(tofsi.load_scene(scene_path("beam_in_channel_optimization_fsi"), ISSUE_STATE))
     problem = tofsi.Problem(scene)
     stage = checked_stage(scene, None)

@@ -25,17 +25,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tofsi import quality
+from tofsi.mesh import quality
 from tofsi.commands.context import stage_index
-from tofsi.coupled import CoupledModel, continuation
-from tofsi.errors import InputError, NumericalError
-from tofsi.final_state import FILE as FINAL_STATE, read_final_state
-from tofsi.fields import Picture, state_points
-from tofsi.finite import require_finite
-from tofsi.output import write_json, write_vtu
-from tofsi.plotting import plot_mesh, plot_nodal, region_outlines
-from tofsi.problem import Problem
-from tofsi.provenance import solve_settings
+from tofsi.coupling.coupled import CoupledModel, continuation
+from tofsi.core.errors import InputError, NumericalError
+from tofsi.core.finite import require_finite
+from tofsi.optimization.final_state import FILE as FINAL_STATE, read_final_state
+from tofsi.fields.base import Picture, state_points
+from tofsi.runs.output import write_json, write_vtu
+from tofsi.runs.plotting import plot_mesh, plot_nodal, region_outlines
+from tofsi.optimization.problem import Problem
+from tofsi.runs.provenance import solve_settings
 
 
 UNPHYSICAL = 5      # exit status: the figures are written, but they are no physical state
@@ -43,7 +43,7 @@ UNPHYSICAL = 5      # exit status: the figures are written, but they are no phys
 
 def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None:
     """VTU (biquadratic cells: the Q2 velocity exactly) with every active field's arrays, and
-    the pictures each field asks for (:meth:`tofsi.fields.Field.pictures`)."""
+    the pictures each field asks for (:meth:`tofsi.fields.base.Field.pictures`)."""
     mesh = model.mesh
     X = state_points(model, state)
     point_data = {}
@@ -75,7 +75,7 @@ def design_densities(scene, args):
     or ``--design`` -- through the filter and projection of continuation stage ``--stage``, as
     ``optimize`` maps it; scenes without a design region use their fixed densities (no problem).
     ``--from RUN``: the final state of that optimize run is the solve's start (``guess``), its
-    stage (its stage record) the default (:mod:`tofsi.final_state`)."""
+    stage (its stage record) the default (:mod:`tofsi.optimization.final_state`)."""
     stage_arg = getattr(args, "stage", None)
     run = getattr(args, "from_run", None)
     if not scene.has_design:
@@ -119,19 +119,11 @@ def run(scene, args, ctx) -> dict:
             if guess is None and model.two_way and problem is not None:
                 err.diagnostic["cold_start"] = True
             raise
-    warnings, physical = [], True
-    if model.structure is not None and state.x is not None:      # the mesh moved with it
-        model.structure.check_displacement(state.u, state.rho)
-    elif model.structure is not None:                # one-way: the answer, flagged
-        beyond = model.structure.displacement_beyond_channel(state.u, state.rho)
-        if beyond:
-            physical = False
-            strain = "finite-strain" if model.structure.nonlinear(state.params) else "small-strain"
-            warnings.append(beyond + f": the {strain} answer for a design far too soft for the "
-                            "flow, not a physical state (optimize starts from it); for a designed "
-                            "structure: --design FILE (the design.npy of tofsi optimize) with --stage last"
-                            + ("" if args.allow_unphysical else
-                               f"; exit status {UNPHYSICAL} (--allow-unphysical accepts these figures)"))
+    hint = ("; for a designed structure: --design FILE (the design.npy of tofsi optimize) with --stage last"
+            + ("" if args.allow_unphysical else f"; exit status {UNPHYSICAL} (--allow-unphysical accepts "
+                                                 "these figures)"))
+    warnings = [text + hint for field in model.fields for text in field.check(model, state)]
+    physical = not warnings
     for text in warnings:
         ctx.warn(text)
     if not physical and not args.allow_unphysical:

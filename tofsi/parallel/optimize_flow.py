@@ -5,9 +5,9 @@
 
 Every rank builds the :class:`~tofsi.parallel.flow_problem.DistributedFlowProblem`
 (the replicated mesh, design map and volume weights; its own slab of the flow).
-Rank 0 runs NLopt exactly as :class:`tofsi.optimize.Optimizer` does -- the
+Rank 0 runs NLopt exactly as :class:`tofsi.optimization.optimize.Optimizer` does -- the
 stages of the scene's continuation, each from the design shifted into the
-volume bound (:meth:`tofsi.problem.Problem.feasible`), ``f / f(stage start)``
+volume bound (:meth:`tofsi.optimization.problem.Problem.feasible`), ``f / f(stage start)``
 minimized with MMA or CCSAQ from the initial step ``INITIAL_STEP``, the
 budget ``optimizer.max_iter`` (``--iterations``) and ``design.stage_iterations``,
 and the same early stop on small changes -- and broadcasts each new design
@@ -18,7 +18,7 @@ rank 0 holds them as every rank does. Rank 0 alone writes ``history.json``
 and ``history.csv`` (the serial optimizer's rows), ``design.npy`` and
 ``result.json`` into ``--output``, and prints one line per evaluation.
 
-Not here (the serial :class:`~tofsi.optimize.Optimizer` has them): the
+Not here (the serial :class:`~tofsi.optimization.optimize.Optimizer` has them): the
 optimality-criteria algorithm, fallbacks and bridging stages after a failed
 solve (a failure stops the run on every rank), checkpoints and ``resume``,
 pictures and VTU output.
@@ -35,13 +35,13 @@ from pathlib import Path
 import nlopt
 import numpy as np
 
-from tofsi.coupled import continuation
-from tofsi.errors import InputError
-from tofsi.finite import require_finite
-from tofsi.nlopt_stage import ALGORITHMS, INITIAL_STEP, run_stage, settled
-from tofsi.history import Iteration
-from tofsi.optimize import non_discreteness
-from tofsi.output import atomic_write, write_csv, write_json
+from tofsi.coupling.coupled import continuation
+from tofsi.core.errors import InputError
+from tofsi.optimization.nlopt_stage import ALGORITHMS, INITIAL_STEP, run_stage, settled
+from tofsi.core.finite import require_finite
+from tofsi.optimization.history import Iteration
+from tofsi.optimization.optimize import non_discreteness
+from tofsi.runs.output import atomic_write, write_csv, write_json
 
 log = logging.getLogger(__name__)
 
@@ -187,7 +187,7 @@ class _Parser(argparse.ArgumentParser):
 def _prepare(args):
     """The scene and the output folder, checked before petsc4py or a mesh is needed."""
     import tofsi
-    from tofsi.run_folder import check_writable
+    from tofsi.runs.run_folder import check_writable
     if args.iterations is not None and not 1 <= args.iterations <= 10_000:
         raise InputError("--iterations", args.iterations, "allowed: 1 to 10000 (optimizer.max_iter)")
     overrides = args.set + ([f"optimizer.max_iter={args.iterations}"] if args.iterations else [])
@@ -205,7 +205,7 @@ def main(argv=None) -> int:
     """Every failure ends in one line on stderr: exit 2 for bad input (a missing scene, a bad
     ``--set``, petsc4py not installed, with the install hint), 3 for a numerical failure, 130
     for Ctrl-C -- as ``tofsi``'s command line."""
-    from tofsi.errors import NumericalError, WriteError
+    from tofsi.core.errors import NumericalError, WriteError
     parser = _Parser(prog=PROG, description="Flow-only topology optimization across MPI ranks (PETSc).")
     parser.add_argument("scene")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override")
