@@ -18,6 +18,7 @@ from conftest import SCENES, scene_path
 LINE = re.compile(r"^\s+(\w+)\s+min skewness\s+(-?[\d.]+)\s+inverted\s+(\d+)\s+area change (-?[\d.]+) \.\. (-?[\d.]+)")
 
 
+@pytest.mark.acceptance
 def test_move_foil_prints_each_movers_own_figures(cli, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("TOFSI_EXAMPLE_SMALL", "1")
     example = runpy.run_path(str(SCENES.parent / "move_foil.py"))

@@ -91,6 +91,7 @@ def test_a_solver_failure_without_an_element_says_none_failed(cli, tmp_path, mon
     assert text == "preconditioned Krylov solve did not converge (no element failed)"
 
 
+@pytest.mark.acceptance
 def test_a_violated_bound_is_in_the_summary_line_and_result_json(cli, tmp_path):
     """A skewness bound of 0.99 that the first two-way design cannot meet (its mesh's soft minimum
     is near 0.6): the run ends there (max_iter), and says so."""

@@ -87,6 +87,7 @@ shipped-scene test runs it there): three one-way stages of 20 iterations, then f
 finite-strain iterations (stage 3)."""
 
 
+@pytest.mark.acceptance
 def test_the_large_examples_design_is_re_solved_from_its_run(cli, tmp_path):
     """The quoted figures existed only on the optimizer's warm-start path: a cold solve of the
     same design (stage 3) reaches another coupled state here (compliance 1.717 against the run's

@@ -116,6 +116,7 @@ def issue_state():
     return problem, problem.solve(gamma)
 
 
+@pytest.mark.acceptance
 def test_the_shape_blocks_equal_the_complex_step_at_the_issue_state(issue_state):
     """F_x d and S_x d (analytic, tofsi.physics.fluid_shape) against the complex step of the
     flow's element residuals and of the reaction load through the element kernels, all elements
@@ -149,6 +150,7 @@ def test_the_shape_blocks_equal_the_complex_step_at_the_issue_state(issue_state)
         assert np.linalg.norm(S_x @ d - dS) < 1e-13 * np.linalg.norm(dS)
 
 
+@pytest.mark.acceptance
 def test_check_gradients_passes_the_shape_blocks_at_the_issue_state(issue_state):
     """The Taylor steps now start where the remainder is clean (from 1e-2 up to 0.16 of the
     direction: r ~ 1e-9 against a floor of ~1e-13) and read rate 2; before, four halvings from
