@@ -25,14 +25,15 @@ MESH = ["mesh.h_min=0.05", "mesh.h_max=0.1"] if os.environ.get("TOFSI_EXAMPLE_SM
 
 
 def main(mode: str = "rotation", output: Path = Path("results/move_foil")) -> list[dict]:
-    scene = tofsi.load_scene(HERE / "scenes" / "foil_in_channel.toml", MESH + [f"deformation.mode={mode}"])
-    setup = motion_setup(scene)             # the mesh and the foil's motion, shared by all movers
-    print(f"foil {mode}: {setup.moving.size} moving quads")
     rows = []
     for name in movers.available():
-        scene_m = tofsi.load_scene(scene.source, MESH + [f"deformation.mode={mode}", f"mover.name={name}"])
+        scene = tofsi.load_scene(HERE / "scenes" / "foil_in_channel.toml",
+                                 MESH + [f"deformation.mode={mode}", f"mover.name={name}"])
+        setup = motion_setup(scene)         # this mover's (the mesh and the foil's motion are shared)
+        if not rows:
+            print(f"foil {mode}: {setup.moving.size} moving quads")
         try:
-            _, result = run_move(scene_m, setup=setup)
+            _, result = run_move(scene, setup=setup)
             q = moved_quality(setup, result.displacement)
             row = {"mover": name, "min_skewness": q.min_skewness, "n_inverted": q.n_inverted,
                    "min_area_change": q.min_area_change, "max_area_change": q.max_area_change,

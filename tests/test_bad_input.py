@@ -566,3 +566,255 @@ def test_the_readme_exit_status_table_lists_every_status():
     rows = {int(m) for m in re.findall(r"^\| (\d+) \| ", readme, flags=re.M)}
     raised = {cls.exit_status for cls in (errors.InputError, errors.NumericalError, errors.WriteError)}
     assert rows == set(STATUS) and raised <= rows and {0, 1, 130, 143} <= rows
+
+
+# ---- issue 35, item 1: no non-finite number is written as a result ------------------------------
+def strict_json(path):
+    """JSON that holds no NaN or infinity (Python's json would read them back silently)."""
+    import json
+
+    def refuse(constant):
+        raise AssertionError(f"{path} holds {constant}")
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def assert_all_finite(folder):
+    """Every result file of a run folder: JSON without NaN/Infinity, CSV without nan/inf cells,
+    VTU arrays, design.npy and the checkpoint's arrays finite."""
+    import csv
+    import json
+    import meshio
+    for path in folder.iterdir():
+        if path.suffix == ".json":
+            strict_json(path)
+        elif path.suffix == ".csv":
+            cells = [c.lower() for row in csv.reader(path.open()) for c in row]
+            assert not {"nan", "inf", "-inf"} & set(cells), path
+        elif path.suffix == ".vtu":
+            mesh = meshio.read(path)
+            arrays = [mesh.points, *mesh.point_data.values(), *(v[0] for v in mesh.cell_data.values())]
+            assert all(np.all(np.isfinite(a)) for a in arrays), path
+        elif path.suffix == ".npy":
+            assert np.all(np.isfinite(np.load(path))), path
+        elif path.suffix == ".npz":
+            with np.load(path) as data:
+                for key in data.files:
+                    if key == "meta":
+                        json.loads(str(data["meta"]), parse_constant=lambda c, path=path: pytest.fail(f"{c} in {path}"))
+                    else:
+                        assert np.all(np.isfinite(data[key])), (path, key)
+
+
+@pytest.mark.parametrize("scene,overrides", [
+    (OPT, ["design.min_skewness=0.5"]),                                     # a one-way scene
+    (FSI, ["design.min_skewness=0.5", 'design.coupling=["one-way"]']),      # a one-way schedule
+])
+def test_a_skewness_bound_where_no_stage_moves_the_mesh_is_refused(scene, overrides, cli, tmp_path):
+    """Issue 35: exit 0 with NaN in history.csv (the bound's column) and in the VTU design
+    arrays; the bound cannot apply without a two-way stage, so it is refused before computing."""
+    run = cli("optimize", scene, "--output", tmp_path / "out", *[a for o in overrides for a in ("--set", o)])
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert lines[0].startswith("tofsi: error: design.min_skewness = 0.5") and "no stage" in lines[0]
+    assert "two-way" in lines[0] and not (tmp_path / "out").exists()
+
+
+def test_a_forced_non_finite_objective_is_a_numerical_failure_and_no_file_holds_it(cli, tmp_path, monkeypatch):
+    """The compliance made NaN from the third evaluation on: exit 3 naming the quantity and the
+    design iteration; the files of the iterations before it are complete and finite (the
+    history's not-applicable columns blank, the design VTUs finite outside the design region)."""
+    from tofsi.objectives.compliance import Compliance
+    value, calls = Compliance.value, []
+
+    def forced(self, model, state):
+        calls.append(1)
+        return float("nan") if len(calls) > 2 else value(self, model, state)
+    monkeypatch.setattr(Compliance, "value", forced)
+    run = cli("optimize", OPT, "--output", tmp_path / "out", *TINY_OPT, "--set", "optimizer.max_iter=6",
+              "--set", "optimizer.max_failures=1", "--set", "optimizer.output_every=1")
+    line = run.stderr.strip().splitlines()[-1]
+    assert run.returncode == 3, run.stderr
+    assert "design iteration 2" in line and "not finite: compliance (nan)" in line, line
+    out = tmp_path / "out"
+    assert [r["iteration"] for r in strict_json(out / "history.json")] == [0, 1]
+    assert strict_json(out / "history.json")[0]["min_skewness"] is None
+    assert (out / "design_0001.vtu").exists() and not (out / "result.json").exists()
+    assert_all_finite(out)
+
+
+def test_a_forced_non_finite_figure_of_a_solve_is_a_numerical_failure(cli, tmp_path, monkeypatch):
+    """An infinite objective: exit 3 naming it; neither solve.json nor a VTU is written."""
+    from tofsi.objectives.compliance import Compliance
+    monkeypatch.setattr(Compliance, "value", lambda self, model, state: float("inf"))
+    run = cli("solve", OPT, "--output", tmp_path / "out", *TINY_OPT)
+    line = run.stderr.strip().splitlines()[-1]
+    assert run.returncode == 3, run.stderr
+    assert "solve: not finite: objective (inf)" in line and "no element failed" in line
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["diagnostic.json", "run.json"]
+    assert_all_finite(tmp_path / "out")
+
+
+def test_a_modulus_near_the_floating_point_limit_gives_finite_unphysical_figures(cli, tmp_path):
+    """E = 1e-300 gave an infinite max_displacement (its norm overflowed) with exit 0 from
+    optimize; the figures are now finite (4e304 m) and the state is flagged unphysical."""
+    run = cli("solve", OPT, "--output", tmp_path / "out", "--set", "structure.youngs_modulus=1e-300", *TINY_OPT)
+    assert run.returncode == 5, run.stderr
+    figures = strict_json(tmp_path / "out" / "solve.json")["figures"]
+    assert figures["physical"] is False and 1e303 < figures["max_displacement"] < 1e306
+    assert_all_finite(tmp_path / "out")
+
+
+def test_a_finished_optimization_writes_only_finite_numbers(cli, tmp_path):
+    run = cli("optimize", OPT, "--output", tmp_path / "out", *TINY_OPT, "--set", "optimizer.max_iter=3")
+    assert run.returncode == 0, run.stderr
+    assert_all_finite(tmp_path / "out")
+    history = strict_json(tmp_path / "out" / "history.json")
+    assert all(h["min_skewness"] is None and h["skewness_constraint"] is None for h in history)
+    assert strict_json(tmp_path / "out" / "result.json")["physical"] is True
+
+
+# ---- issue 36, item 3: exit 0 only for a physical final ------------------------------------------
+def test_an_optimization_ending_on_an_unphysical_state_exits_5(cli, tmp_path):
+    """The FSI scene (E = 5 kPa) on a short coarse schedule ended one-way at 59 m of solid
+    displacement with exit 0. Now exit 5: written, physical false with the reason, as solve."""
+    args = ["optimize", FSI, *TINY_OPT, "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.05",
+            "--set", "optimizer.max_iter=6"]
+    run = cli(*args, "--output", tmp_path / "out")
+    assert run.returncode == 5, run.stderr
+    result = strict_json(tmp_path / "out" / "result.json")
+    assert result["physical"] is False and "exceeds the channel's length" in result["unphysical"]
+    assert "no physical state" in run.stderr and "--allow-unphysical" in run.stderr
+    assert strict_json(tmp_path / "out" / "run.json")["exit_status"] == 5
+    accepted = cli(*args, "--output", tmp_path / "ok", "--allow-unphysical")
+    assert accepted.returncode == 0 and "no physical state" in accepted.stderr
+
+
+def test_physicality_covers_every_direction_and_the_channel_walls():
+    """1.4 m of displacement in a 1 m high channel passed (the check took the longest side,
+    2 m); every direction now: a component beyond the channel's size in it, a solid node moved
+    out of the channel, a non-finite value. A physical displacement passes."""
+    import tofsi as toolkit
+    from tofsi.coupling.coupled import CoupledModel
+    model = CoupledModel(toolkit.load_scene(OPT, ["mesh.h_min=0.1", "mesh.h_max=0.1"]))
+    structure, mesh = model.structure, model.mesh
+    rho = model.densities()                                    # the fixed wall x in [0.975, 1.025], y < 0.5
+    u = np.zeros((mesh.n_nodes, 2))
+    assert structure.displacement_beyond_channel(u, rho) == ""
+    u[:, 1] = 1.4 * mesh.points[:, 1]                           # 1.4 m at the top, in y
+    assert "1.4 m in y exceeds the channel's height (1 m)" in structure.displacement_beyond_channel(u, rho)
+    u[:] = 0.0
+    u[mesh.points[:, 1] > 0, 0] = 1.2                          # the wall (x <= 1.025) to x = 2.2: out
+    assert "the solid leaves the channel" in structure.displacement_beyond_channel(u, rho)
+    assert structure.displacement_beyond_channel(u) == ""       # without densities: no solid known
+    u[:, 0] = 0.1 * mesh.points[:, 1]
+    assert structure.displacement_beyond_channel(u, rho) == ""  # 5 cm at the wall's top: physical
+    u[3, 1] = np.inf
+    assert "not finite at 1 node" in structure.displacement_beyond_channel(u, rho)
+
+
+# ---- issue 35, items 2 and 3; issue 36, item 4: no traceback from any entry point ---------------
+def modules_with_main() -> set[str]:
+    """Every ``tofsi.*`` module that defines a ``main`` (what ``python -m`` can run)."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    return {".".join(p.relative_to(root).with_suffix("").parts) for p in (root / "tofsi").rglob("*.py")
+            if "\ndef main(" in p.read_text()}
+
+
+def entry_points():
+    """``(module, leading arguments)``: each tofsi subcommand, and every other module with a main."""
+    from tofsi.cli import COMMANDS
+    walk = {"tofsi.cli": [[c] for c in COMMANDS], "tofsi.parallel.optimize_flow": [[]]}
+    assert set(walk) == modules_with_main(), "add the new module's arguments to the walk"
+    return [(m, lead) for m, leads in walk.items() for lead in leads]
+
+
+def scene_for(lead) -> str:
+    return FOIL if lead and lead[0] in ("mesh", "move", "tune", "study") else OPT
+
+
+def run_main(module, argv, capsys):
+    import importlib
+    capsys.readouterr()
+    status = importlib.import_module(module).main([str(a) for a in argv])
+    return status, capsys.readouterr().err
+
+
+BAD_ARGUMENTS = {"missing scene": lambda lead: ["nowhere.toml"],
+                 "bad --set": lambda lead: [scene_for(lead), "--set", "mesh.h_mni=0.1"],
+                 "nested --set": lambda lead: [scene_for(lead), "--set", "mover.layers=" + "[" * 3000 + "]" * 3000]}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_ARGUMENTS))
+@pytest.mark.parametrize("module,lead", entry_points(), ids=lambda v: v if isinstance(v, str) else " ".join(v))
+def test_every_entry_point_answers_bad_input_in_one_line(module, lead, case, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    extra = ["--sweep", "mover.layers[0]=1:2:1"] if lead == ["study"] else []
+    status, err = run_main(module, [*lead, *BAD_ARGUMENTS[case](lead), *extra, "--output", "out"], capsys)
+    lines = err.strip().splitlines()
+    assert status == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert {"missing scene": "no such file", "bad --set": "mesh.h_mni",
+            "nested --set": "nested more than 16"}[case] in lines[0]
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("module,lead", [e for e in entry_points() if e[1] != ["mesh"]],
+                         ids=lambda v: v if isinstance(v, str) else " ".join(v))
+def test_every_entry_point_names_a_missing_optional_package_with_its_install_hint(module, lead, capsys, tmp_path,
+                                                                                  monkeypatch):
+    """petsc4py made unimportable (the distributed driver needs it; the others for the petsc
+    backend): one line, exit 2, the install hint. (``tofsi mesh`` solves nothing.)"""
+    import sys
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setitem(sys.modules, "petsc4py", None)
+    extra = ["--sweep", "mover.layers[0]=1:2:1"] if lead == ["study"] else []
+    status, err = run_main(module, [*lead, scene_for(lead) if lead else str(scene_path("double_pipe")),
+                                    "--set", "solver.linear_solver=petsc", *extra, "--output", "out"], capsys)
+    lines = err.strip().splitlines()
+    assert status == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert "petsc4py does not import" in lines[0] and "python3-petsc4py-real" in lines[0]
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("command,overrides,says", [
+    ("mesh", ["name=\udcff"], "undecodable byte (not UTF-8), the byte 0xff"),        # UnicodeEncodeError
+    ("mesh", ["name=a\u200bb"], "invisible character, U+200B ZERO WIDTH SPACE"),      # accepted before
+    ("mesh", ["name=a\u2028b"], "line separator"),
+    ("mesh", ["--output", "t\udcff"], "undecodable byte"),
+    ("mesh", ["--output", "a\u200bb/c"], "invisible character"),
+    ("check-gradients", ["--seed", "-1"], "--seed"),                                    # ValueError
+    ("solve", ["solver.linear_solver=iterative", "fluid.element=q1q1"], "fluid.element"),   # KeyError
+    ("solve", ["fluid.alpha_max=1e300"], "fluid.alpha_max"),                            # ValueError
+    ("optimize", ["optimizer.max_iter=100000000"], "optimizer.max_iter"),              # 1.2 GB to refuse
+    ("optimize", ["optimizer.max_iter=1000000000"], "optimizer.max_iter"),
+    ("optimize", ["design.stage_iterations=100000000"], "design.stage_iterations"),
+    ("solve", ["coupled.min_load_step=1e-300"], "coupled.min_load_step"),              # ran for hours
+])
+def test_limits_and_names_refused_in_one_line(command, overrides, says, cli, tmp_path):
+    """Issues 35/36: tracebacks (undecodable names, negative seeds, q1q1 on the iterative path,
+    alpha_max 1e300), invisible names accepted, resource limits found late or never."""
+    import time
+    args = [command, FOIL if command == "mesh" else OPT]
+    extra = list(overrides)
+    while extra:
+        item = extra.pop(0)
+        args += [item, extra.pop(0)] if item.startswith("--") else ["--set", item]
+    if "--output" not in args:
+        args += ["--output", "out"]
+    t0 = time.perf_counter()
+    run = cli(*args, cwd=tmp_path)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert says in lines[0] and time.perf_counter() - t0 < 30
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_deeply_nested_scene_file_is_refused(cli, tmp_path):
+    """A scene nested thousands deep ended in RecursionError (tomllib), hundreds deep in the
+    copy of the scene."""
+    (tmp_path / "deep.toml").write_text("name = 'x'\nx = " + "[" * 3000 + "]" * 3000 + "\n")
+    (tmp_path / "deeper.toml").write_text("name = 'x'\n[a]\nx = " + "[" * 400 + "]" * 400 + "\n")
+    for scene, says in (("deep.toml", "scene = "), ("deeper.toml", "a.x[0][0]")):
+        run = cli("mesh", tmp_path / scene, "--output", tmp_path / "out")
+        lines = run.stderr.strip().splitlines()
+        assert run.returncode == 2 and len(lines) == 1 and says in lines[0] and "nested more than 16" in lines[0]

@@ -7,7 +7,8 @@ The two-way scenes' structures are soft (E = 5 and 1.5 kPa), so their uniform gr
 one-way, beta 1) moves tens of metres in small-strain elasticity: ``solve`` writes the linear
 model's figures (optimize's iteration 0) marked ``physical: false`` with a warning on stderr, in
 solve.json and in run.json saying what to solve instead (--design FILE), and exits 5 unless
-``--allow-unphysical`` accepts them.
+``--allow-unphysical`` accepts them; ``optimize``'s three one-way iterations end on such a state
+and exit 5 too.
 """
 
 import json
@@ -54,11 +55,13 @@ def test_shipped_scene_runs_through_the_command_line(name, command, size, cli, t
         mesh += [a for key in COARSE_EXTRA.get((name, command), []) for a in ("--set", key)]
     extra = ["--set", "optimizer.max_iter=3", "--set", "optimizer.output_every=10"] if command == "optimize" else []
     run = cli(command, str(scene_path(name)), *mesh, "--output", str(tmp_path / "out"), "--json", *extra)
-    unphysical = command == "solve" and name in SOFT
+    unphysical = command in ("solve", "optimize") and name in SOFT      # optimize: 3 one-way iterations
     assert run.returncode == (5 if unphysical else 0), run.stderr
     figures = json.loads(run.stdout)
     assert figures.get("physical", True) is not unphysical
-    if unphysical:
+    if unphysical and command == "optimize":
+        assert "no physical state" in run.stderr and "exceeds the channel" in figures["unphysical"]
+    elif unphysical:
         warning = [ln for ln in run.stderr.splitlines() if ln.startswith("warning:")]
         assert len(warning) == 1 and "exceeds the channel" in warning[0] and "--design FILE" in warning[0]
         assert "--allow-unphysical" in warning[0]

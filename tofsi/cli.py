@@ -6,7 +6,8 @@ numerical failure (a diagnostic file is written to the output folder), 4 a
 result file could not be written (disk full, a file-size limit: one line
 naming the file, the reason and the complete files kept; ``run.json`` says
 ``"status": "write failure"``), 5 a result that is no physical state
-(``solve``: a small-strain displacement beyond the channel; written, with
+(``solve``'s state or ``optimize``'s final one: a displacement beyond the
+channel's length or height, or the solid moved out of it; written, with
 ``physical: false``), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM,
 handled like Ctrl-C).
 
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import tofsi
 from tofsi.commands.context import RunContext
-from tofsi.commands.hints import hint
+from tofsi.commands.hints import describe, hint
 from tofsi.core.errors import InputError, NumericalError, WriteError
 from tofsi.runs.memory import check as check_memory
 from tofsi.runs.output import default_output, to_json, write_json
@@ -105,11 +106,17 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "optimize":
             p.add_argument("--resume", action="store_true",
                            help="continue exactly where an interrupted run in --output stopped")
-        if name == "solve":
+        if name in ("solve", "optimize"):
             p.add_argument("--allow-unphysical", action="store_true",
-                           help="accept a one-way small-strain state whose displacement exceeds the "
-                                "channel (exit 0 with a warning; without it: exit 5)")
-            p.add_argument("--stage", default="0", metavar="N|last",
+                           help="accept a (final) state whose structure leaves the channel or moves "
+                                "more than its length or height (exit 0 with a warning; without it: "
+                                "exit 5)")
+        if name == "solve":
+            p.add_argument("--from", dest="from_run", type=Path, default=None, metavar="RUN",
+                           help="start from the final state of the tofsi optimize run in folder RUN "
+                                "(its final_state.npz), with its design and stage unless --design or "
+                                "--stage say otherwise: reproduces its result.json")
+            p.add_argument("--stage", default=None, metavar="N|last",
                            help="continuation stage whose projection, SIMP penalty and Brinkman q "
                                 "apply (default 0: optimize's first iteration from this design; "
                                 "result.json's stage: that run's final figures; last: the "
@@ -169,8 +176,11 @@ def sigterm_as_interrupt():
 def scene_overrides(args) -> list[str]:
     """``--set`` values, plus ``--design FILE`` as ``design.initial``."""
     overrides = list(args.set)
-    if getattr(args, "design", None) is not None:
-        overrides.append(f"design.initial={json.dumps(str(args.design))}")
+    design = getattr(args, "design", None)
+    if design is None and getattr(args, "from_run", None) is not None:
+        design = args.from_run / "design.npy"          # --from RUN: its design, unless --design
+    if design is not None:
+        overrides.append(f"design.initial={json.dumps(str(design))}")
     return overrides
 
 
@@ -179,6 +189,18 @@ def check_options(args) -> None:
     gb = args.max_memory
     if gb is not None and not (math.isfinite(gb) and gb > 0):
         raise InputError("--max-memory", gb, "allowed: a memory limit in GB > 0")
+    seed = getattr(args, "seed", None)
+    if seed is not None and not 0 <= seed < 2**63:
+        raise InputError("--seed", seed, "allowed: a whole number from 0 to 2^63 - 1")
+    run = getattr(args, "from_run", None)
+    if run is not None:                            # before its design.npy is read as design.initial
+        from tofsi.optimization.final_state import FILE
+        if not run.is_dir():
+            raise InputError("--from", str(run), "no such folder (give the --output folder of a tofsi "
+                             "optimize run)")
+        if not (run / FILE).is_file():
+            raise InputError("--from", str(run), f"holds no {FILE}: a tofsi optimize run writes it when it "
+                             "finishes (an interrupted run: finish it with --resume)")
     if getattr(args, "resume", False) and args.overwrite:
         raise InputError("--resume", True, "cannot go with --overwrite (--resume continues the run "
                          "in --output, --overwrite replaces it); give one of them")
@@ -293,8 +315,8 @@ def _numerical_failure(err: NumericalError, args, ctx, scene) -> int:
     quality = err.diagnostic.get("quality", {})
     payload = {"error": str(err), "converged": False, "diagnostic": str(path),
                **{k: quality[k] for k in QUALITY if k in quality}}
-    return _error(f"tofsi: numerical failure: {err}{'; ' + extra if extra else ''} (diagnostic: {path})"
-                  f"{unwritten}", payload, args.json, 3)
+    return _error(f"tofsi: numerical failure: {describe(err)}{'; ' + extra if extra else ''} "
+                  f"(diagnostic: {path}){unwritten}", payload, args.json, 3)
 
 
 def _write_failure(err: WriteError, args, ctx) -> int:

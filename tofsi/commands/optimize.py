@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 
+from tofsi.commands.solve import UNPHYSICAL
 from tofsi.mesh import quality
 from tofsi.optimization.optimize import Optimizer
 from tofsi.runs.output import atomic_write, write_vtu
@@ -20,28 +21,31 @@ class Pictures:
     Each design VTU carries, per element, the physical density ``density`` (rho),
     the design variables ``design_variable`` (gamma), the filtered densities
     ``filtered_density`` (before projection), the objective's sensitivity
-    ``sensitivity`` (df/dgamma) -- the last three are NaN outside the design
-    region -- the region tag, and where the fluid mesh moved (two-way stages) its
-    per-element ``skewness`` and ``area_change``.
+    ``sensitivity`` (df/dgamma) -- outside the design region, where there are no
+    design variables, the first two hold the element's fixed density and the
+    sensitivity is 0 (no file holds a NaN) -- the region tag, and where the fluid
+    mesh moved (two-way stages) its per-element ``skewness`` and ``area_change``.
     """
 
     def __init__(self, ctx, problem):
-        self.ctx, self.problem, self.series = ctx, problem, []
+        self.ctx, self.problem = ctx, problem
 
-    def design_fields(self, gamma) -> dict:
-        """Per-element design fields (NaN outside the design region)."""
+    def design_fields(self, gamma, rho, sensitivity=None) -> dict:
+        """Per-element design fields (outside the design region: the fixed density ``rho``, and
+        a sensitivity of 0); ``sensitivity``: the gradient the optimizer recorded for ``gamma``
+        (default: the problem's, cached from the optimizer's evaluation)."""
         p = self.problem
         design = p.map.design
         fields = {}
-        _, df = p.evaluate(gamma)                        # cached: computed by the optimizer
-        for name, values in (("design_variable", gamma), ("filtered_density", p.map.filter.forward(gamma)),
-                             ("sensitivity", df)):
-            full = np.full(p.model.mesh.n_elements, np.nan)
+        df = p.evaluate(gamma)[1] if sensitivity is None else sensitivity
+        for name, values, outside in (("design_variable", gamma, rho), ("sensitivity", df, 0.0),
+                                      ("filtered_density", p.map.filter.forward(gamma), rho)):
+            full = np.zeros(p.model.mesh.n_elements) + outside
             full[design] = values
             fields[name] = full
         return fields
 
-    def __call__(self, iteration, gamma, state) -> None:
+    def __call__(self, iteration, gamma, state, sensitivity=None) -> None:
         p, mesh = self.problem, self.problem.model.mesh
         tag = iteration if iteration == "final" else f"{iteration:04d}"
         X = mesh.points if state.x is None else mesh.points + state.mesh_displacement
@@ -54,17 +58,20 @@ class Pictures:
         when = "final design" if iteration == "final" else f"design at iteration {iteration}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
                     title=f"{p.scene.name}: {when} ({stage})", outlines=region_outlines(mesh.quads, mesh.region))
-        cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma)}
+        cells = {"density": state.rho, "region": mesh.region, **self.design_fields(gamma, state.rho, sensitivity)}
         if state.x is not None:                                  # the moved fluid mesh's quality
             cells["skewness"] = quality.skewness(X, mesh.quads)
             cells["area_change"] = quality.area_change(mesh.points, X, mesh.quads)
         write_vtu(self.ctx.output / f"{name}.vtu", X, {"quad": mesh.quads}, point_data, cells)
         if iteration != "final":
-            self.series.append((iteration, f"{name}.vtu"))
             self._collection()
 
     def _collection(self) -> None:
-        rows = "\n".join(f'    <DataSet timestep="{i}" file="{f}"/>' for i, f in self.series)
+        """The ParaView collection of every design VTU in the folder (a resumed run's earlier
+        ones too: the folder, not this process, holds the series)."""
+        found = sorted((int(p.stem[len("design_"):]), p.name) for p in self.ctx.output.glob("design_*.vtu")
+                       if p.stem[len("design_"):].isdigit())
+        rows = "\n".join(f'    <DataSet timestep="{i}" file="{f}"/>' for i, f in found)
         text = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
                 f"{rows}\n  </Collection>\n</VTKFile>\n")
         atomic_write(self.ctx.output / "design_series.pvd", lambda tmp: open(tmp, "w").write(text))
@@ -106,12 +113,20 @@ def run(scene, args, ctx) -> dict:
     ctx.begin()
     figures = optimizer.run(resume=args.resume)
     ctx.extra["stop_reason"] = figures["stop_reason"]
+    if not figures["physical"]:                      # written, flagged, exit 5 unless accepted
+        ctx.warn(f"the final design's state is no physical state: {figures['unphysical']}"
+                 + ("" if args.allow_unphysical else
+                    f"; exit status {UNPHYSICAL} (--allow-unphysical accepts these figures)"))
+        if not args.allow_unphysical:
+            ctx.exit_status = UNPHYSICAL
+    figures["warnings"] = ctx.extra.get("warnings", [])
     plot_convergence(ctx.output / "convergence.png", [h.__dict__ for h in optimizer.history],
                      title=f"{scene.name}: {d.objective}", objective_label=problem.objective.axis_label())
     ctx.say(f"final {d.objective} {figures['objective']:.6g}, volume {figures['volume']:.4f} "
             f"(constraint {figures['constraint']:.2e}), non-discreteness "
             f"{figures['non_discreteness_percent']:.1f} %, {figures['iterations']} iterations, "
             f"{figures['wall_time_s']:.0f} s; stopped: {figures['stop_reason']}"
-            + (f"; {figures['fallbacks']} fallbacks from failed trial designs" if figures["fallbacks"] else ""))
+            + (f"; {figures['fallbacks']} fallbacks from failed trial designs" if figures["fallbacks"] else "")
+            + "".join(f"; the {name} bound is violated (g = {g:+.3g} > 0)" for name, g in figures["violated"].items()))
     figures["outputs"] = sorted(str(p) for p in ctx.output.iterdir() if not p.name.startswith("."))
     return figures

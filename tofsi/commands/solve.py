@@ -7,6 +7,11 @@ parameters of continuation stage ``--stage`` (default 0), so ``solve`` of a
 design reproduces ``optimize``'s first iteration from it, and ``--stage N``
 with the ``stage`` of a run's ``result.json`` that run's final figures
 (``last``: the schedule's last stage, where a completed run ends).
+``--from RUN`` starts the solve from that optimize run's final state (its
+``final_state.npz``) and takes its design and stage unless given: a design
+the optimizer reached along its warm-start path may be out of a cold
+start's reach (the inflow ramp from rest stops short), and its figures are
+then ``result.json``'s to the solver tolerance.
 
 A one-way state whose small-strain displacement exceeds the channel (a gray
 design far too soft for the flow: optimize's iteration 0 of a soft scene) is no
@@ -18,11 +23,14 @@ them (exit 0, the warning kept). Where the mesh moves with the structure
 
 from __future__ import annotations
 
+from pathlib import Path
 
 from tofsi.mesh import quality
 from tofsi.commands.context import stage_index
 from tofsi.coupling.coupled import CoupledModel, continuation
-from tofsi.core.errors import InputError
+from tofsi.core.errors import InputError, NumericalError
+from tofsi.core.finite import require_finite
+from tofsi.optimization.final_state import FILE as FINAL_STATE, read_final_state
 from tofsi.fields.base import Picture, state_points
 from tofsi.runs.output import write_json, write_vtu
 from tofsi.runs.plotting import plot_mesh, plot_nodal, region_outlines
@@ -63,39 +71,54 @@ def draw(path, picture: Picture, X, mesh, rho, title: str) -> None:
 
 
 def design_densities(scene, args):
-    """``(model, rho, about, problem)``: the scene's design -- uniform, ``design.initial`` or
-    ``--design`` -- through the filter and projection of continuation stage ``--stage``, as
-    ``optimize`` maps it; scenes without a design region use their fixed densities (no problem)."""
-    stage_arg = str(getattr(args, "stage", "0"))
+    """``(model, rho, about, problem, guess)``: the scene's design -- uniform, ``design.initial``
+    or ``--design`` -- through the filter and projection of continuation stage ``--stage``, as
+    ``optimize`` maps it; scenes without a design region use their fixed densities (no problem).
+    ``--from RUN``: the final state of that optimize run is the solve's start (``guess``), its
+    stage (its stage record) the default (:mod:`tofsi.optimization.final_state`)."""
+    stage_arg = getattr(args, "stage", None)
+    run = getattr(args, "from_run", None)
     if not scene.has_design:
         if scene.design.initial:
             raise InputError("design.initial", scene.design.initial,
                              "the scene has no design region (geometry.design) to apply a design to")
-        if stage_arg != "0":
+        if stage_arg not in (None, "0"):
             raise InputError("--stage", stage_arg, "the scene has no design region (geometry.design)")
+        if run is not None:
+            raise InputError("--from", str(run), "the scene has no design region (geometry.design)")
         model = CoupledModel(scene)
-        return model, model.densities(), {}, None
+        return model, model.densities(), {}, None, None
     d = scene.design
-    stage = stage_index(scene, stage_arg)
     problem = Problem(scene)                         # reads and checks design.initial
-    problem.set_stage(continuation(scene, stage))
+    meta, guess = read_final_state(run, problem) if run is not None else ({}, None)
+    stage = stage_index(scene, stage_arg if stage_arg is not None else meta.get("stage", "0"))
+    problem.set_stage(guess.stage if guess is not None and stage_arg is None else continuation(scene, stage))
     params = problem.params
     gamma = problem.initial_design()
     about = {"design": d.initial or "uniform", "stage": stage, "beta": params.beta,
              "penalty": params.penalty, "brinkman_q": params.brinkman_q}
-    return problem.model, problem.densities(gamma), about, problem
+    if guess is not None:
+        about["start"] = str(Path(run) / FINAL_STATE)
+    return problem.model, problem.densities(gamma), about, problem, guess
 
 
 def run(scene, args, ctx) -> dict:
-    model, rho, about, problem = design_densities(scene, args)
+    model, rho, about, problem, guess = design_densities(scene, args)
     fields = ", ".join(field.title for field in model.fields)
     ctx.say(f"{scene.name}: {model.mesh.n_elements} quads; solving {fields}"
             + (f" ({scene.coupled.method} two-way coupling)" if model.two_way else ""))
     if about:
         ctx.say(f"design: {about['design']} through the filter (radius {scene.design.filter_radius:g} m) "
                 f"and the projection of stage {about['stage']} (beta {about['beta']:g})")
+    if guess is not None:
+        ctx.say(f"starting from the final state of {args.from_run} (stage {about['stage']})")
     with ctx.step(f"solving {fields} on {model.mesh.n_elements} quads"):
-        state = model.solve(rho, stage=None if problem is None else problem.stage)
+        try:
+            state = model.solve(rho, guess, stage=None if problem is None else problem.stage)
+        except NumericalError as err:        # a cold start may fail where the optimizer's path did not
+            if guess is None and model.two_way and problem is not None:
+                err.diagnostic["cold_start"] = True
+            raise
     hint = ("; for a designed structure: --design FILE (the design.npy of tofsi optimize) with --stage last"
             + ("" if args.allow_unphysical else f"; exit status {UNPHYSICAL} (--allow-unphysical accepts "
                                                  "these figures)"))
@@ -113,6 +136,7 @@ def run(scene, args, ctx) -> dict:
     flow = state.reports.get("flow")
     if flow:
         figures["newton_iterations"] = flow["newton_iterations"]
+    require_finite(figures, "solve")
     for key in [k for field in model.fields for k in field.summary] + ["objective", "volume"]:
         if key in figures:
             ctx.say(f"  {key.replace('_', ' '):22s} {figures[key]:.6g}")

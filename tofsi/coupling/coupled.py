@@ -151,11 +151,27 @@ class CoupledModel:
 
             def at(p: Continuation, start: State | None) -> State:
                 return self.unfolded(system.solve(rho, p, start, progress))
-            state = (ramped(at, stage.params, guess, c.min_load_step) if c.load_ramp and system.cycles
-                     else at(stage.params, guess))     # one-way: the flow's Reynolds continuation instead
+            try:
+                state = (ramped(at, stage.params, guess, c.min_load_step) if c.load_ramp and system.cycles
+                         else at(stage.params, guess))     # one-way: the flow's Reynolds continuation instead
+            except NumericalError as err:
+                self._add_quality(err)
+                raise
         state.stage = stage
         state.reports["wall_time_s"] = time.perf_counter() - t0
         return state
+
+    def _add_quality(self, err: NumericalError) -> None:
+        """A failed load ramp's diagnostic without the mesh's quality gets that of its last
+        converged state (the mesh as far as it moved; the command line's --json reports it)."""
+        accepted = getattr(err, "accepted", None)
+        if "quality" in err.diagnostic or accepted is None or accepted.x is None:
+            return
+        q = quality.summary(self.mesh.points, self.mesh.points + accepted.mesh_displacement, self.mesh.quads)
+        err.diagnostic["quality"] = {"load": err.diagnostic.get("load"), "min_skewness": q.min_skewness,
+                                     "min_area_change": q.min_area_change, "max_area_change": q.max_area_change,
+                                     "n_inverted": q.n_inverted, "worst_element": q.min_skewness_element,
+                                     "worst_location": list(q.min_skewness_location)}
 
     def unfolded(self, state: State) -> State:
         """``state``, or a :class:`~tofsi.core.errors.NumericalError` when its moved fluid mesh folds:

@@ -54,11 +54,13 @@ def ramped(solve: Callable[[Continuation, State | None], State], params: Continu
             step *= 0.5
             log.info("load step to %.4g failed (%s); cut back to %.4g", trial, err, step)
             if step < min_step:
-                raise NumericalError(
+                failure = NumericalError(
                     f"load continuation stopped at {load:.4g} of the inflow (a step of {2 * step:.3g} to "
                     f"{trial:.4g} failed: {err})",
                     {**err.diagnostic, "load": load, "failed_load": trial, "load_steps": steps,
-                     "cutbacks": cutbacks, "full_load_failure": str(first_failure)}, state=err.state) from err
+                     "cutbacks": cutbacks, "full_load_failure": str(first_failure)}, state=err.state)
+                failure.accepted = state            # the last converged state (None: none), for its quality
+                raise failure from err
             continue
         load = trial
         steps.append(load)

@@ -32,6 +32,14 @@ class MotionSetup:
     mesh: StructuredQuadMesh
     motion: MeshMotion
     prescribed: np.ndarray       # (n, 2) structure motion, zero elsewhere [m]
+    scene: object = None         # the scene the motion (its mover, stiffening, band) was built for
+
+    def check_for(self, scene) -> None:
+        """A setup moves with the mover of the scene it was built for: refuse another scene
+        (another mover would otherwise print this one's figures under its own name)."""
+        if self.scene is not None and self.scene != scene:
+            raise ValueError(f"this MotionSetup was built for {self.scene.name!r} with the "
+                             f"{self.scene.mover.name} mover; make one per scene: motion_setup(scene)")
 
     @property
     def problem(self) -> MotionProblem:
@@ -81,11 +89,15 @@ def motion_setup(scene, prescribed: np.ndarray | None = None) -> MotionSetup:
         mesh = build_mesh(scene.geometry, scene.mesh)
     size = float(np.max(np.linalg.norm(prescribed, axis=1))) if prescribed.size else 0.0
     return MotionSetup(mesh, MeshMotion(mesh, scene, motion_size=size,
-                                        linear_algebra=LinearAlgebra.from_settings(scene.solver)), prescribed)
+                                        linear_algebra=LinearAlgebra.from_settings(scene.solver)), prescribed,
+                       scene)
 
 
 def run_move(scene, progress=None, setup: MotionSetup | None = None) -> tuple[MotionSetup, MoveResult]:
-    """Apply the scene's motion with its mover; raises NumericalError on failure."""
+    """Apply the scene's motion with its mover; raises NumericalError on failure. ``setup``:
+    the scene's :func:`motion_setup`, if already made (a setup of another scene is refused)."""
+    if setup is not None:
+        setup.check_for(scene)
     setup = setup or motion_setup(scene)
     return setup, setup.motion.move(setup.prescribed, progress=progress)
 

@@ -97,7 +97,9 @@ class FluidSettings:
     right: SideFlow = option(SideFlow(), doc="openings in the right side")
     bottom: SideFlow = option(SideFlow(), doc="openings in the bottom side")
     top: SideFlow = option(SideFlow(), doc="openings in the top side")
-    alpha_max: float = option(1e5, gt=0, doc="Brinkman friction of solid [kg/(m^3 s)]")
+    alpha_max: float = option(1e5, gt=0, le=1e15, doc="Brinkman friction of solid [kg/(m^3 s)] (at most "
+                              "1e15: beyond, the solid's rows exceed the viscous ones by more than "
+                              "double precision holds)")
     alpha_min: float = option(0.0, ge=0, doc="Brinkman friction of fluid [kg/(m^3 s)]")
     newton_tol: float = option(1e-10, gt=0, lt=1, doc="Newton tolerance on the residual, "
                                "relative to the residual of the zero state")

@@ -214,15 +214,16 @@ class StructureEntry(Field):
         return StructureBlock(structure, structure.material(stage.material), moving_mesh=stage.coupling == "two-way")
 
     def check(self, model, state):
-        """A displacement beyond the channel: one-way, an answer but no physical state (a design
-        far too soft for the flow); where the mesh moved with it (two-way), a failure."""
+        """A displacement beyond the channel (in either direction, or the solid out of it): one-way,
+        an answer but no physical state (a design far too soft for the flow); where the mesh moved
+        with it (two-way), a failure."""
         if state.u is None:
             return []
         structure = model.structure
         if state.x is not None:
-            structure.check_displacement(state.u)
+            structure.check_displacement(state.u, state.rho)
             return []
-        beyond = structure.displacement_beyond_channel(state.u)
+        beyond = structure.displacement_beyond_channel(state.u, state.rho)
         if not beyond:
             return []
         strain = "finite-strain" if structure.material(state.stage.material).nonlinear else "small-strain"

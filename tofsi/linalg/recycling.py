@@ -106,18 +106,22 @@ class RecyclingSolver:
         if r0 <= goal:
             return (np.zeros_like(b) if x0 is None else x0), True
         apply = self.solver.preconditioner(transpose)
-        if self.solver.exact:
-            x, its = flexible_gmres(A, b, apply, goal, self.max_iter, self.max_iter, x0)
-            self.stale = its > self.refresh_after
-        else:
-            setup = self.solver.setup_iterations
-            cap = (self.solver.max_iter if self.fresh_cost is None
-                   else int(self.fresh_cost * math.log10(r0 / goal) + 2 * setup) + 1)
-            if self.solver.symmetric:
-                x, its = self._cg(A, b, apply, x0, goal, cap)
-            else:                          # GMRES(m) for a fixed linear preconditioner, else FGMRES
-                x, its = gmres(A, b, apply, goal, cap, getattr(self.solver, "restart", GMRES_RESTART), x0,
-                               flexible=not getattr(self.solver, "linear_preconditioner", False))
+        try:
+            if self.solver.exact:
+                x, its = flexible_gmres(A, b, apply, goal, self.max_iter, self.max_iter, x0)
+                self.stale = its > self.refresh_after
+            else:
+                setup = self.solver.setup_iterations
+                cap = (self.solver.max_iter if self.fresh_cost is None
+                       else int(self.fresh_cost * math.log10(r0 / goal) + 2 * setup) + 1)
+                if self.solver.symmetric:
+                    x, its = self._cg(A, b, apply, x0, goal, cap)
+                else:                      # GMRES(m) for a fixed linear preconditioner, else FGMRES
+                    x, its = gmres(A, b, apply, goal, cap, getattr(self.solver, "restart", GMRES_RESTART), x0,
+                                   flexible=not getattr(self.solver, "linear_preconditioner", False))
+        except ValueError:                      # an overflow in the Krylov basis (SciPy refuses inf): not
+            log.info("Krylov solve: the basis overflowed")            # converged, as a NaN iterate is
+            return np.full_like(b, np.nan), False
         self.krylov_iterations += its
         residual = float(np.linalg.norm(b - A @ x))
         ok = bool(np.all(np.isfinite(x))) and residual <= 1.01 * goal

@@ -38,11 +38,12 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
         for key in SUCCESS_ARRAYS[1:]:
             arrays[f"e{k}_{key}"] = e[key]
         arrays[f"e{k}_f"] = np.array([e["f"], e["volume"]])
-        arrays[f"e{k}_quality"] = np.array(e["quality"])
+        if np.all(np.isfinite(e["quality"])):          # NaN: the mesh did not move (left out)
+            arrays[f"e{k}_quality"] = np.array(e["quality"])
         arrays[f"e{k}_ramp"] = np.array(e["ramp"])
     fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
     meta = {"scene": problem.scene.name, "stage": run.stage, "n_stage_evaluations": len(run.log),
-            "scale": run.scale, "history": [asdict(h) for h in history], "stage_start": run.start.tolist(),
+            "scale": run.scale, "history": [h.row() for h in history], "stage_start": run.start.tolist(),
             "failures": failures, "fallbacks_at_start": run.fallbacks_at_start,
             "params": record(run.record), "pending": [record(r) for r in run.pending],
             "previous": record(run.previous),

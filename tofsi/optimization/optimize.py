@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import nlopt
@@ -62,6 +61,9 @@ from tofsi.core.blocks import Stage
 from tofsi.optimization.checkpoint import read_stage, stage_record, write_checkpoint
 from tofsi.coupling.coupled import continuation
 from tofsi.core.errors import InputError, NumericalError
+from tofsi.core.finite import require_finite
+from tofsi.optimization.final_state import FILE as FINAL_STATE, write_final_state
+from tofsi.optimization.history import Iteration
 from tofsi.optimization.nlopt_stage import INITIAL_STEP, run_stage, settled
 from tofsi.optimization.oc import oc_step
 from tofsi.runs.output import atomic_write, write_csv, write_json
@@ -70,27 +72,7 @@ from tofsi.optimization.stages import StageRun, StageStartFailed, bridge
 log = logging.getLogger(__name__)
 
 
-@dataclass
-class Iteration:
-    iteration: int
-    stage: int
-    objective: float           # unscaled
-    scaled_objective: float    # by the stage's first value
-    volume: float              # solid fraction of the design region
-    constraint: float          # g <= 0 feasible
-    change: float              # max |gamma - gamma_previous|
-    beta: float
-    penalty: float
-    brinkman_q: float
-    time_s: float
-    coupling: str = ""            # one-way stage of a two-way problem, or as the scene
-    min_skewness: float = float("nan")        # of the moved fluid mesh (NaN: the mesh did not move)
-    min_area_change: float = float("nan")
-    max_area_change: float = float("nan")
-    skewness_constraint: float = float("nan")  # g of design.min_skewness (NaN: not constrained here)
-    fallbacks: int = 0                         # failed trial designs so far in the run
-    load_steps: int = 0                        # steps of the inflow ramp this evaluation took (0: none)
-    load_cutbacks: int = 0
+VIOLATED = 1e-3      # a final constraint value g above this is a violated bound (result.json's "violated")
 
 
 class TrialFailed(Exception):
@@ -164,12 +146,16 @@ class Optimizer:
         try:
             f, df = p.evaluate(gamma)
             g, dg = p.constraints(gamma)
+            state = p.solve(gamma)
+            volume = p.volume_fraction.value(p.model, state)
+            require_finite({p.scene.design.objective: f, "objective gradient": df, "constraints": g,
+                            "constraint gradients": dg, "volume": volume, "state": state.fields},
+                           f"design iteration {len(self.history)}")
         except NumericalError as err:
             return {"gamma": gamma.copy(), "failed": True, "error": str(err), "diagnostic": err.diagnostic}
-        state = p.solve(gamma)
         ramp = state.reports.get("load_ramp", {})
         return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
-                "volume": p.volume_fraction.value(p.model, state), "quality": mesh_quality(p.model.mesh, state),
+                "volume": volume, "quality": mesh_quality(p.model.mesh, state),
                 "ramp": (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))),
                 "state": state.data()}             # the record: fields, no factorizations held
 
@@ -179,9 +165,10 @@ class Optimizer:
             run.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
         stage = self.problem.stage              # the stage's record, as the problem solved with it
         params, g = stage.params, entry["g"]
+        elapsed = entry.pop("time_s", None)            # a replayed row keeps its recorded time
         it = Iteration(len(self.history), run.stage, float(entry["f"]), float(entry["f"] / run.scale),
-                       float(entry["volume"]), float(g[0]), change, params.beta,
-                       params.penalty, params.brinkman_q, time.perf_counter() - self._t0,
+                       float(entry["volume"]), float(g[0]), change, params.beta, params.penalty,
+                       params.brinkman_q, time.perf_counter() - self._t0 if elapsed is None else elapsed,
                        stage.coupling or self.scene.effects.coupling, *entry["quality"],
                        float(g[1]) if len(g) > 1 else float("nan"), self.fallbacks, *entry["ramp"])
         self.history.append(it)
@@ -192,7 +179,7 @@ class Optimizer:
             for earlier in run.log[:-1]:               # hold one state (and its factorizations)
                 earlier.pop("state", None)
             if self.on_picture and (it.iteration % self.settings.output_every == 0):
-                self.on_picture(it.iteration, gamma, entry["state"])
+                self.on_picture(it.iteration, gamma, entry["state"], entry["df"])
         if self.on_iteration:
             self.on_iteration(it)
 
@@ -210,7 +197,12 @@ class Optimizer:
         if resume:
             meta, replay, state = read_stage(self.checkpoint_path, p)
             skip = meta["history"][-1]["iteration"] + 1 - sum(not e.get("failed") for e in replay)
-            self.history = [Iteration(**h) for h in meta["history"][:skip]]
+            self.history = [Iteration.from_row(h) for h in meta["history"][:skip]]
+            succeeded = [e for e in replay if not e.get("failed")]
+            for e, row in zip(succeeded, meta["history"][skip:], strict=True):
+                e["time_s"] = row["time_s"]
+            if succeeded:                  # the last one's state is the checkpoint's: its evaluation
+                succeeded[-1]["state"] = state     # is written again (a snapshot an interrupt cut short)
             self.fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
             stage = meta["stage"]
             run = StageRun(stage, np.asarray(meta["stage_start"], dtype=float), meta["scale"], replay=replay,
@@ -295,10 +287,12 @@ class Optimizer:
         diagnostic = {"iteration": len(self.history), "stage": run.stage, "fallbacks": self.fallbacks,
                       "failures_in_a_row": run.failures_in_a_row, **error.diagnostic}
         if run.last is None:
+            diagnostic["why"] = ("the stage's first design failed, so there is no good design of this stage to "
+                                 "fall back to, and no bridging stage is left (a bridge needs an earlier stage "
+                                 "whose beta, penalty or q differs by 5 % or more; at most "
+                                 "optimizer.max_failures nested per stage)")
             raise StageStartFailed(NumericalError(
-                f"{where}: the stage's first design failed, so there is no good design of this stage to fall "
-                f"back to, and no bridging stage is left (a bridge needs an earlier stage whose beta, penalty "
-                f"or q differs by 5 % or more; at most optimizer.max_failures nested per stage): {error}",
+                f"{where}: the stage's first design failed, no bridging stage left; the last: {error}",
                 diagnostic, state=error.state))
         if run.failures_in_a_row >= limit:
             raise NumericalError(f"{where}: {run.failures_in_a_row} trial designs failed in a row "
@@ -375,7 +369,8 @@ class Optimizer:
         return oc_step(gamma, entry["df"], dvolume, p.phase_fraction, d.volume_fraction, solid, move)
 
     def _write_history(self) -> None:
-        rows = [asdict(h) for h in self.history]
+        rows = [h.row() for h in self.history]
+        require_finite(rows, "the history")
         write_csv(self.output / "history.csv", rows)
         write_json(self.output / "history.json", rows)
 
@@ -389,20 +384,32 @@ class Optimizer:
         p = self.problem
         state = p.solve(gamma)
         rho = p.densities(gamma)[p.map.design]
+        g = p.constraints(gamma)[0]
+        constraints = dict(zip(p.constraint_names(), map(float, g), strict=True))
         figures = {"scene": self.scene.name, "iterations": len(self.history),
                    "objective": float(p.evaluate(gamma)[0]),
                    "volume": float(p.volume_fraction.value(p.model, state)),
-                   "constraint": float(p.constraints(gamma)[0][0]),
+                   "constraint": float(g[0]), "constraints": constraints,
+                   "violated": {k: v for k, v in constraints.items() if v > VIOLATED},
                    "non_discreteness_percent": non_discreteness(rho),
                    "wall_time_s": time.perf_counter() - self._t0,
                    "evaluations_computed": p.evaluations, "stop_reason": self.stop_reason,
                    "fallbacks": self.fallbacks,
                    "stage": self.history[-1].stage if self.history else 0,     # of these figures
                    **p.model.figures(state)}
+        structure = p.model.structure
+        beyond = "" if structure is None else structure.displacement_beyond_channel(state.u, state.rho)
+        figures["physical"] = not beyond                 # else the reason (exit 5 on the command line)
+        if beyond:
+            figures["unphysical"] = beyond
+        require_finite(figures, f"the final design (after design iteration {len(self.history) - 1})")
         self._write_history()
         self._write_design(gamma)
+        write_final_state(self.output / FINAL_STATE, p, gamma, state, figures["stage"])    # to re-solve it
         write_json(self.output / "result.json", figures)
-        if self.on_picture:
-            self.on_picture("final", gamma, state)
+        if self.on_picture:                # the gradient as recorded (a resumed run has no adjoint of it)
+            last = self.run_stage.last if self.run_stage is not None else None
+            recorded = last[1]["df"] if last is not None and np.array_equal(last[0], gamma) else None
+            self.on_picture("final", gamma, state, recorded)
         self.final_state = state
         return figures

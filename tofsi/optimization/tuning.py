@@ -296,6 +296,8 @@ def tune(scene, progress=None, setup: MotionSetup | None = None) -> TuneResult:
         raise InputError("tune.algorithm", s.algorithm, "LBFGS takes no constraints; with area "
                          "bounds use SLSQP, MMA or CCSAQ")
     t0 = time.perf_counter()
+    if setup is not None:
+        setup.check_for(scene)
     setup = setup or motion_setup(scene)
     if setup.motion.mover.kinks:
         log.warning("tune: the %s mover's map is not smooth: %s", scene.mover.name, setup.motion.mover.kinks)

@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import nlopt
@@ -38,7 +38,9 @@ import numpy as np
 from tofsi.coupling.coupled import continuation
 from tofsi.core.errors import InputError
 from tofsi.optimization.nlopt_stage import ALGORITHMS, INITIAL_STEP, run_stage, settled
-from tofsi.optimization.optimize import Iteration, non_discreteness
+from tofsi.core.finite import require_finite
+from tofsi.optimization.history import Iteration
+from tofsi.optimization.optimize import non_discreteness
 from tofsi.runs.output import atomic_write, write_csv, write_json
 
 log = logging.getLogger(__name__)
@@ -149,7 +151,8 @@ class DistributedOptimizer:
             self.on_iteration(it, point)
 
     def _write_history(self) -> None:
-        rows = [asdict(h) for h in self.history]
+        rows = [h.row() for h in self.history]
+        require_finite(rows, "the history")
         write_csv(self.output / "history.csv", rows)
         write_json(self.output / "history.json", rows)
 
@@ -162,29 +165,75 @@ class DistributedOptimizer:
                    "ranks": self.mpi.size, "elements": p.model.mesh.n_elements,
                    "evaluations_computed": self.problem.evaluations,
                    "wall_time_s": time.perf_counter() - self._t0}
+        require_finite(figures, "the final design")
         self._write_history()
         atomic_write(self.output / "design.npy", lambda tmp: np.save(tmp, gamma))
         write_json(self.output / "result.json", figures)
         return figures
 
 
+PROG = "python -m tofsi.parallel.optimize_flow"
+
+
+class UsageError(Exception):
+    """A malformed command line (argparse's complaint)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):                      # one line, status 2 (as tofsi's command line)
+        raise UsageError(f"{message} (see {PROG} --help)")
+
+
+def _prepare(args):
+    """The scene and the output folder, checked before petsc4py or a mesh is needed."""
+    import tofsi
+    from tofsi.runs.run_folder import check_writable
+    if args.iterations is not None and not 1 <= args.iterations <= 10_000:
+        raise InputError("--iterations", args.iterations, "allowed: 1 to 10000 (optimizer.max_iter)")
+    overrides = args.set + ([f"optimizer.max_iter={args.iterations}"] if args.iterations else [])
+    scene = tofsi.load_scene(args.scene, overrides)
+    check(scene)
+    check_writable(args.output)
+    from tofsi.linalg.petsc import unavailable            # lazily: the driver's one optional need
+    missing = unavailable()
+    if missing:
+        raise InputError("petsc4py", "not available", missing)
+    return scene
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tofsi.parallel.optimize_flow",
-                                     description="Flow-only topology optimization across MPI ranks (PETSc).")
+    """Every failure ends in one line on stderr: exit 2 for bad input (a missing scene, a bad
+    ``--set``, petsc4py not installed, with the install hint), 3 for a numerical failure, 130
+    for Ctrl-C -- as ``tofsi``'s command line."""
+    from tofsi.core.errors import NumericalError, WriteError
+    parser = _Parser(prog=PROG, description="Flow-only topology optimization across MPI ranks (PETSc).")
     parser.add_argument("scene")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override")
     parser.add_argument("--iterations", type=int, help="optimizer.max_iter: evaluations in all")
     parser.add_argument("--output", type=Path, default=Path("results/distributed"), help="output folder")
     parser.add_argument("--amg", default="hypre", choices=["hypre", "gamg"])
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+        return _run(_prepare(args), args)
+    except (InputError, UsageError) as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 2
+    except NumericalError as err:
+        print(f"{PROG}: numerical failure: {err}", file=sys.stderr)
+        return 3
+    except WriteError as err:
+        print(f"{PROG}: write failure: {err}", file=sys.stderr)
+        return 4
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _run(scene, args) -> int:
     from petsc4py import PETSc
 
-    import tofsi
     from tofsi.parallel.flow_problem import DistributedFlowProblem
-    overrides = args.set + ([f"optimizer.max_iter={args.iterations}"] if args.iterations else [])
     mpi = PETSc.COMM_WORLD.tompi4py()
-    scene = tofsi.load_scene(args.scene, overrides)
-    check(scene)
     problem = DistributedFlowProblem(scene, amg=args.amg)
     if mpi.rank != 0:
         serve(problem, mpi)

@@ -145,23 +145,48 @@ class Structure:
         material = material or self.material()
         return material.solve(self.load(w, x, rho, params), rho, self.simp(params))[0]
 
-    def displacement_beyond_channel(self, u) -> str:
-        """A sentence if the largest displacement exceeds the channel's extent (a structure
-        far too soft for small-strain elasticity), else ``""``."""
-        largest = float(np.max(np.linalg.norm(u.reshape(-1, 2), axis=1)))
-        extent = float(np.ptp(self.mesh.points, axis=0).max())
-        if largest <= extent:
+    def displacement_beyond_channel(self, u, rho=None) -> str:
+        """A sentence if the displacement ``u`` is no physical state, else ``""``: not finite;
+        larger than the channel in either direction at any node (``|u_x|`` beyond its length,
+        ``|u_y|`` beyond its height); or, given the densities ``rho``, a node of the solid
+        (elements with ``rho >= 0.5``) moved out of the channel by more than half an element."""
+        U = np.asarray(u).reshape(-1, 2)
+        if not np.all(np.isfinite(U)):
+            return f"structure: displacement not finite at {int(np.sum(~np.isfinite(U).all(axis=1)))} node(s)"
+        points = self.mesh.points
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        largest = np.abs(U).max(axis=0)
+        over = largest / (hi - lo)
+        if over.max() > 1.0:
+            axis = int(np.argmax(over))
+            return (f"structure: displacement {largest[axis]:.3g} m in {'xy'[axis]} exceeds the channel's "
+                    f"{('length', 'height')[axis]} ({hi[axis] - lo[axis]:.3g} m)")
+        if rho is None:
             return ""
-        return f"structure: displacement {largest:.3g} m exceeds the channel ({extent:.3g} m)"
+        solid = np.unique(self.mesh.quads[np.asarray(rho) >= 0.5])
+        if solid.size == 0:
+            return ""
+        moved = points[solid] + U[solid]
+        outside = np.maximum(lo - moved, moved - hi).max(axis=1)
+        quads = self.mesh.quads
+        slack = 0.5 * float(np.linalg.norm(points[quads[:, 1]] - points[quads[:, 0]], axis=1).min())
+        k = int(np.argmax(outside))
+        if outside[k] <= slack:
+            return ""
+        (x, y), (mx, my) = points[solid[k]], moved[k]
+        return (f"structure: the solid leaves the channel (its node at ({x:.3g}, {y:.3g}) m moves "
+                f"{np.hypot(*U[solid[k]]):.3g} m to ({mx:.3g}, {my:.3g}) m, {outside[k]:.3g} m outside)")
 
-    def check_displacement(self, u) -> None:
-        """A displacement larger than the channel is a failure, not a result, where the mesh
-        moves with it (two-way): a structure that is not held, or far too soft."""
-        beyond = self.displacement_beyond_channel(u)
+    def check_displacement(self, u, rho=None) -> None:
+        """A displacement that is no physical state (:meth:`displacement_beyond_channel`) is a
+        failure, not a result, where the mesh moves with it (two-way): a structure that is not
+        held, or far too soft."""
+        beyond = self.displacement_beyond_channel(u, rho)
         if beyond:
-            raise NumericalError(beyond + ": the structure is not held by structure.clamped or is far too soft",
-                                 {"max_displacement": float(np.max(np.linalg.norm(u.reshape(-1, 2), axis=1))),
-                                  "channel_size": float(np.ptp(self.mesh.points, axis=0).max())})
+            raise NumericalError(beyond + " (no element failed): the design is far too soft for the flow's "
+                                 "load (the mesh cannot follow it)",
+                                 {"max_displacement": float(np.max(np.hypot(*u.reshape(-1, 2).T))),
+                                  "channel_size": np.ptp(self.mesh.points, axis=0).tolist()})
 
     def fluid_partial(self, w, x, rho, params=None) -> sp.csr_matrix:
         """``S_w = -df/dw`` (2n x size of w) at the flow state ``w``."""
@@ -193,7 +218,7 @@ class Structure:
         (nodes of elements with ``rho >= 1/2``; nearly void elements carry the Ersatz material's
         meaningless motion, which can be larger than the structure's by metres)."""
         f = self.load(w, x, rho, params)
-        size = np.linalg.norm(u.reshape(-1, 2), axis=1)
+        size = np.hypot(*u.reshape(-1, 2).T)            # no overflow before the result does
         solid = np.unique(self.mesh.quads[np.asarray(rho) >= 0.5])
         return {"compliance": float(f @ u), "max_displacement": float(size.max()),
                 "max_solid_displacement": float(size[solid].max()) if solid.size else 0.0}

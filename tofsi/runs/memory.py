@@ -113,7 +113,9 @@ def estimate(scene, command: str = "solve", backend: str = "superlu", ranks: int
             unknowns[field.title] = need.unknowns
             per_element += need.bytes_per_element
             if iterative:
-                solver_bytes += ITERATIVE_BYTES_PER_UNKNOWN[need.fill] * need.unknowns
+                # (q1q1 flow has no iterative path: the flow refuses it once built; no KeyError first)
+                solver_bytes += ITERATIVE_BYTES_PER_UNKNOWN.get(need.fill, ITERATIVE_BYTES_PER_UNKNOWN["flow"]) \
+                    * need.unknowns
             else:
                 entries[field.title] = factor_entries(need.unknowns, need.fill)
     if not iterative:

@@ -21,6 +21,7 @@ import meshio
 import numpy as np
 
 from tofsi.core.errors import WriteError
+from tofsi.core.finite import require_finite
 
 
 _UMASK = os.umask(0)
@@ -119,8 +120,11 @@ def write_vtu(path, points: np.ndarray, cells: dict[str, np.ndarray],
               point_data: dict | None = None, cell_data: dict | None = None) -> Path:
     """Unstructured grid for ParaView. ``cells``: {"quad": (E, 4)} or {"quad9": (E, 9)}.
 
-    2D vectors are padded with a zero z component so ParaView can warp by them.
+    2D vectors are padded with a zero z component so ParaView can warp by them. A point or
+    an array entry that is not finite is a :class:`~tofsi.errors.NumericalError` naming the
+    file and the array (:func:`tofsi.core.finite.require_finite`); nothing is written then.
     """
+    require_finite({"points": points, **(point_data or {}), **(cell_data or {})}, Path(path).name)
     pts = np.column_stack([points, np.zeros(len(points))])
 
     def pad(v):

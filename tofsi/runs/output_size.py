@@ -92,7 +92,7 @@ def estimate(scene, command: str) -> OutputEstimate:
         for tag in shots:
             files.update({f"design_{tag}.vtu": per["design"], f"design_{tag}.png": PICTURE})
         held = min(o.max_iter, max(d.stage_iterations, 1))          # evaluations of one stage
-        files.update({"checkpoint.npz": per["state"] + 4 * 8.0 * n_design * held,
+        files.update({"checkpoint.npz": per["state"] + 4 * 8.0 * n_design * held, "final_state.npz": per["state"],
                       "design.npy": 8.0 * n_design, "convergence.png": PLOT,
                       "history.csv": SMALL, "history.json": SMALL, "result.json": SMALL,
                       "design_series.pvd": SMALL})

@@ -26,11 +26,12 @@ import fnmatch
 import json
 import logging
 import os
+import re
 import tempfile
-import unicodedata
 from pathlib import Path
 
 from tofsi.core.errors import InputError, WriteError
+from tofsi.core.names import unreadable
 from tofsi.runs.folder_lock import FolderLock
 from tofsi.runs.output import write_json
 from tofsi.runs.output_size import RESERVE, file_size_limit
@@ -43,7 +44,7 @@ RUN_FILE = "run.json"
 # Every name a tofsi command or example writes (a previous run's files without a run.json).
 OUTPUT_PATTERNS = ("run.json", "diagnostic.json", "mesh.vtu", "mesh.png", "moved_mesh.*", "failed_mesh.*",
                    "move.json", "solve.json", "solution.vtu", "solution_*.png", "design_*.png",
-                   "design_*.vtu", "design_series.pvd", "design.npy", "checkpoint.npz", "history.csv",
+                   "design_*.vtu", "design_series.pvd", "design.npy", "checkpoint.npz", "final_state.npz", "history.csv",
                    "history.json", "result.json", "convergence.png", "check_gradients.json",
                    "study.csv", "study.json", "study.png")
 RESERVE_FILE = ".tofsi-reserve"
@@ -73,9 +74,9 @@ def check_names(real: Path, existing: Path, key: str, shown: str) -> None:
     ``real`` fits in PATH_MAX."""
     name_max = _limit(existing, "PC_NAME_MAX", 255)
     for part in real.relative_to(existing).parts:
-        if any(unicodedata.category(c) == "Cc" for c in part):
-            raise InputError(key, shown, f"has a control character (newline, tab, ...) in the folder "
-                             f"name {part!r}; choose a plain name")
+        if unreadable(part):
+            raise InputError(key, shown, f"has {unreadable(part)} in the folder name {part!r}; choose "
+                             "a name of visible characters")
         if len(part.encode()) > name_max:
             raise InputError(key, shown, f"has a folder name of {len(part.encode())} bytes; the file "
                              f"system allows at most {name_max}")
@@ -135,6 +136,22 @@ def describe(record: dict | None, names: list[str]) -> str:
     return f"{len(names)} file(s) ({', '.join(names[:3])}{', ...' if len(names) > 3 else ''})"
 
 
+TEMPORARY = re.compile(r"^\.(?P<stem>.+)\.[a-z0-9_]{8}(?P<suffix>\.[A-Za-z0-9]+)?$")   # atomic_write's
+
+
+def stale_temporaries(folder: Path) -> list[Path]:
+    """Temporary files a killed run left in ``folder`` (SIGKILL skips every clean-up): the
+    ``.<name>.XXXXXXXX.<ext>`` of an output being written, the reserve and write probes."""
+    found = []
+    for p in folder.iterdir() if folder.is_dir() else ():
+        match = TEMPORARY.match(p.name)
+        ours = match and any(fnmatch.fnmatch(match["stem"] + (match["suffix"] or ""), pattern)
+                             for pattern in OUTPUT_PATTERNS)
+        if p.is_file() and (ours or p.name == RESERVE_FILE or p.name.startswith(".tofsi-probe-")):
+            found.append(p)
+    return found
+
+
 def _remove(path: Path) -> None:
     try:
         path.unlink()
@@ -181,6 +198,8 @@ class RunFolder:
         self.created = missing
         try:
             self.lock.acquire(self.key)
+            for stale in stale_temporaries(self.path):      # locked: no other run writes here
+                _remove(stale)
             names = visible_files(self.path)
             self.previous = read_record(self.path)
             listed = set((self.previous or {}).get("files", []))

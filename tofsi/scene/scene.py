@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import re
 import tomllib
-import unicodedata
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from tofsi.core.errors import InputError
+from tofsi.core.names import unreadable
 from tofsi.core.registry import FIELDS, OBJECTIVES, SCENE_TABLES
 
 MIN_ELEMENTS_ACROSS = 4     # mesh.h_max is at most the channel's smaller side over this
@@ -135,8 +135,10 @@ def scene_from_dict(raw: dict, source: str = "") -> Scene:
         if key not in top:
             raise InputError(key, raw[key], "unknown key; allowed keys: " + ", ".join(sorted(top)))
     name = raw.get("name")
-    if (not isinstance(name, str) or not name or any(c in name for c in "/\\")
-            or any(unicodedata.category(c) == "Cc" for c in name) or name in (".", "..")):
+    if isinstance(name, str) and unreadable(name):
+        raise InputError("name", name, f"has {unreadable(name)}: it names the output folder, which a reader "
+                         "must see and type; choose a name of visible characters")
+    if not isinstance(name, str) or not name or any(c in name for c in "/\\") or name in (".", ".."):
         raise InputError("name", name, "required: a non-empty string without slashes or control "
                          "characters (newline, tab, ...), not '.' or '..' (it names the output folder)")
     description = raw.get("description", "")
@@ -169,6 +171,12 @@ def _check_across_tables(scene: Scene) -> None:
     if scene.design.structure_model and effects.structure == "none":
         raise InputError("design.structure_model", list(scene.design.structure_model),
                          "a structure model per stage needs a structure (effects.structure)")
+    moves = two_way and effects.structure != "none" and (not scene.design.coupling
+                                                           or "two-way" in scene.design.coupling)
+    if scene.has_design and scene.design.min_skewness > -1 and not moves:      # coupled.two_way_stages
+        raise InputError("design.min_skewness", scene.design.min_skewness, "bounds the skewness of the moved "
+                         "fluid mesh, but no stage of this scene moves it (no two-way stage: effects.coupling "
+                         "= \"two-way\" with a mover, and a two-way entry in design.coupling); -1 (no bound)")
     if scene.optimizer.algorithm == "OC" and scene.design.min_skewness > -1:
         raise InputError("optimizer.algorithm", "OC", "MMA or CCSAQ with design.min_skewness (the "
                          "optimality-criteria update handles one volume bound only)")
@@ -178,6 +186,23 @@ def _check_across_tables(scene: Scene) -> None:
         if not field.active(scene, "optimize"):
             raise InputError("design.objective", scene.design.objective, f"needs the field {needs!r} "
                              f"({field.title}), which this scene does not solve")
+
+
+MAX_DEPTH = 16      # tables and lists nested in a scene (the deepest key, geometry.solids[i][j], has 3)
+
+
+def check_depth(value, key: str) -> None:
+    """Refuse tables or lists nested deeper than ``MAX_DEPTH`` (found without recursion: a
+    value nested thousands deep would exhaust Python's stack in every later step)."""
+    level = [(key, value)]
+    for _ in range(MAX_DEPTH + 1):
+        level = [(f"{k}.{sub}" if isinstance(v, dict) else f"{k}[{i}]", item)
+                 for k, v in level if isinstance(v, (dict, list))
+                 for i, (sub, item) in enumerate(v.items() if isinstance(v, dict) else enumerate(v))]
+        if not level:
+            return
+    raise InputError(level[0][0].lstrip("."), "...", f"nested more than {MAX_DEPTH} tables or lists deep; "
+                     "a scene's values are numbers, strings, and lists of them")
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
@@ -190,6 +215,9 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value.strip()                          # bare words are strings
+    except RecursionError:
+        raise InputError("--set", text, f"nested more than {MAX_DEPTH} lists deep") from None
+    check_depth(parsed, key)
     return key.split("."), parsed
 
 
@@ -262,13 +290,17 @@ def read_scene_file(path: str | Path) -> dict:
         raise InputError("scene", str(path), "no such file")
     try:
         text = path.read_bytes().decode("utf-8-sig")          # a byte-order mark is allowed
-        return tomllib.loads(text)
+        raw = tomllib.loads(text)
+    except RecursionError:
+        raise InputError("scene", str(path), f"nested more than {MAX_DEPTH} tables or lists deep") from None
     except PermissionError:
         raise InputError("scene", str(path), "file is not readable") from None
     except UnicodeDecodeError:
         raise InputError("scene", str(path), "not a text file (UTF-8 TOML expected)") from None
     except tomllib.TOMLDecodeError as err:
         raise InputError("scene", str(path), f"not valid TOML ({err})") from None
+    check_depth(raw, "")
+    return raw
 
 
 def load_scene(path: str | Path, overrides=None) -> Scene:

@@ -43,8 +43,9 @@ class CoupledSettings:
                                        "start, ramp the inflow from rest in adaptive steps (each warm-"
                                        "started from the last, halved on failure) to carry it to large "
                                        "motion")
-    min_load_step: float = option(1.0 / 64.0, gt=0, le=1, doc="the smallest step of the inflow ramp "
-                                  "(fraction of the inflow) before the solve fails")
+    min_load_step: float = option(1.0 / 64.0, ge=1e-6, le=1, doc="the smallest step of the inflow ramp "
+                                  "(fraction of the inflow) before the solve fails (at least 1e-6: some 20 "
+                                  "halvings of the first step, each failed step a coupled solve)")
     jacobian_solver: str = option("block", choices=("block", "direct"),
                                 doc="monolithic: the Newton's linear solver -- block: GMRES preconditioned "
                                     "by block Gauss-Seidel over the fields' own factorizations (flow, "
@@ -101,7 +102,7 @@ class DesignSettings:
                                                   "no physical state either way, and finite strain crushes "
                                                   "it), finite strain once the topology exists; empty: "
                                                   "structure.model throughout")
-    stage_iterations: int = option(40, ge=1, doc="optimizer iterations per continuation stage")
+    stage_iterations: int = option(40, ge=1, le=10_000, doc="optimizer iterations per continuation stage")
     initial: str = option("", doc="design to start from: a design.npy of an earlier run "
                                   "(path relative to the working directory), or a number in [0, 1] "
                                   "(that uniform design, e.g. \"1e-4\" as TOFLUX); empty: uniform at "
@@ -126,7 +127,8 @@ class OptimizerSettings:
     algorithm: str = option("MMA", choices=("MMA", "CCSAQ", "OC"),
                             doc="NLopt LD_MMA or LD_CCSAQ, or OC: topFlow's optimality criteria "
                                 "(one volume bound; exponent 1/3, move limit optimizer.move_limit)")
-    max_iter: int = option(200, ge=1, doc="largest number of design iterations")
+    max_iter: int = option(200, ge=1, le=10_000, doc="largest number of design iterations (at most 10 000: "
+                                                      "the history is rewritten after each)")
     tol_change: float = option(1e-3, gt=0, doc="stop when max |gamma change| falls below")
     tol_objective: float = option(1e-6, gt=0, doc="stop on relative objective change below")
     stall_iterations: int = option(3, ge=1, le=100,
