@@ -724,7 +724,7 @@ def modules_with_main() -> set[str]:
 def entry_points():
     """``(module, leading arguments)``: each tofsi subcommand, and every other module with a main."""
     from tofsi.cli import COMMANDS
-    walk = {"tofsi.cli": [[c] for c in COMMANDS], "tofsi.parallel.optimize_flow": [[]]}
+    walk = {"tofsi.cli": [[c] for c in COMMANDS]}
     assert set(walk) == modules_with_main(), "add the new module's arguments to the walk"
     return [(m, lead) for m, leads in walk.items() for lead in leads]
 

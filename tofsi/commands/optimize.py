@@ -1,12 +1,20 @@
-"""``tofsi optimize SCENE``: topology optimization with NLopt; ``--resume`` continues a run."""
+"""``tofsi optimize SCENE``: topology optimization with NLopt; ``--resume`` continues a run.
+
+Under ``mpiexec -n P`` (P > 1) a flow-only scene is optimized with its flow by slabs
+(:mod:`tofsi.parallel`): rank 0 runs the optimizer and writes every output, the other
+ranks take part in each evaluation. With ``solver.linear_solver = "petsc"`` every rank
+runs the serial problem instead, MUMPS factorizing across them.
+"""
 
 from __future__ import annotations
 
 import sys
+from contextlib import contextmanager
 
 import numpy as np
 
 from tofsi.commands.solve import UNPHYSICAL
+from tofsi.linalg.threads import mpi_size
 from tofsi.mesh import quality
 from tofsi.optimization.optimize import Optimizer
 from tofsi.runs.output import atomic_write, write_vtu
@@ -37,7 +45,7 @@ class Pictures:
         p = self.problem
         design = p.map.design
         fields = {}
-        df = p.evaluate(gamma)[1] if sensitivity is None else sensitivity
+        df = p.evaluation(gamma).df if sensitivity is None else sensitivity
         for name, values, outside in (("design_variable", gamma, rho), ("sensitivity", df, 0.0),
                                       ("filtered_density", p.map.filter.forward(gamma), rho)):
             full = np.zeros(p.model.mesh.n_elements) + outside
@@ -53,7 +61,7 @@ class Pictures:
                       for name, values in field.point_data(p.model, state).items()}
         speed = np.linalg.norm(point_data["velocity"], axis=1) if "velocity" in point_data else None
         name = f"design_{tag}"
-        c, coupling = p.params, p.stage.coupling          # the stage this state was solved in
+        c, coupling = p.stage.params, p.stage.coupling          # the stage this state was solved in
         stage = f"beta {c.beta:g}, penalty {c.penalty:g}" + (f", {coupling}" if coupling else "")
         when = "final design" if iteration == "final" else f"design at iteration {iteration}"
         plot_design(self.ctx.output / f"{name}.png", X, mesh.quads, state.rho, speed,
@@ -77,8 +85,27 @@ class Pictures:
         atomic_write(self.ctx.output / "design_series.pvd", lambda tmp: open(tmp, "w").write(text))
 
 
+@contextmanager
+def design_problem(scene):
+    """The scene's design problem: the serial :class:`Problem`; under ``mpiexec`` (more than one
+    rank, ``solver.linear_solver`` not ``petsc``) the distributed flow's, driven from rank 0 (the
+    block gets None on the other ranks, which served every evaluation when it begins)."""
+    if mpi_size() < 2 or scene.solver.linear_solver == "petsc":
+        yield Problem(scene)
+        return
+    from tofsi.parallel.flow_problem import leading
+    with leading(scene) as problem:
+        yield problem
+
+
 def run(scene, args, ctx) -> dict:
-    problem = Problem(scene)
+    with design_problem(scene) as problem:
+        return {} if problem is None else optimize(problem, scene, args, ctx)
+
+
+def optimize(problem, scene, args, ctx) -> dict:
+    """Optimize ``problem`` (a :class:`~tofsi.optimization.protocol.DesignProblem`) with the
+    progress lines, pictures and summary of the command line."""
     pictures = Pictures(ctx, problem)
     d, s = scene.design, scene.optimizer
 

@@ -18,7 +18,7 @@ import os
 
 from tofsi.linalg.choice import LinearAlgebra, environment_int, solver_threads
 
-__all__ = ["configure", "mpi_rank", "set_blas_threads", "solver_threads"]
+__all__ = ["configure", "mpi_rank", "mpi_size", "set_blas_threads", "solver_threads"]
 log = logging.getLogger(__name__)
 
 
@@ -61,3 +61,11 @@ def mpi_rank() -> int:
         if os.environ.get(name, "").isdigit():
             return int(os.environ[name])
     return 0
+
+
+def mpi_size() -> int:
+    """The number of processes ``mpiexec`` started (1 when not started by an MPI launcher)."""
+    for name in ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "MV2_COMM_WORLD_SIZE"):
+        if os.environ.get(name, "").isdigit():
+            return int(os.environ[name])
+    return 1

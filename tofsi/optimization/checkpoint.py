@@ -5,7 +5,8 @@ the stage from its first design and replays its evaluations bit for bit
 (NLopt is deterministic given the same values). The checkpoint therefore
 holds, per evaluation of the stage in order, the design and either what the
 optimizer was told (objective, constraints, gradients, volume, mesh quality,
-load-ramp counts) or, for a trial design whose solve failed, the failure (so
+load-ramp counts: an :class:`~tofsi.optimization.protocol.Evaluation`) or, for a trial
+design whose solve failed, the failure (a ``FailedEvaluation``, so
 the replay falls back exactly where the run did); the history so far; the
 stage's start and scale; the last coupled state's fields (the next solve's
 warm start); and the problem's identity (:func:`tofsi.optimization.resume.identity`).
@@ -20,6 +21,7 @@ from dataclasses import asdict
 import numpy as np
 
 from tofsi.core.blocks import Continuation, Stage, State
+from tofsi.optimization.protocol import NO_QUALITY, Evaluation, FailedEvaluation
 from tofsi.runs.output import atomic_write, to_json
 from tofsi.optimization.resume import check_resume, identity, read_checkpoint
 
@@ -31,16 +33,16 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
     last computed ``state`` of ``problem`` into ``path``."""
     arrays, failures = {}, {}
     for k, e in enumerate(run.log):
-        arrays[f"e{k}_gamma"] = e["gamma"]
-        if e.get("failed"):
-            failures[str(k)] = {"error": e["error"], "diagnostic": json.loads(to_json(e["diagnostic"]))}
+        arrays[f"e{k}_gamma"] = e.gamma
+        if e.failed:
+            failures[str(k)] = {"error": e.error, "diagnostic": json.loads(to_json(e.diagnostic))}
             continue
         for key in SUCCESS_ARRAYS[1:]:
-            arrays[f"e{k}_{key}"] = e[key]
-        arrays[f"e{k}_f"] = np.array([e["f"], e["volume"]])
-        if np.all(np.isfinite(e["quality"])):          # NaN: the mesh did not move (left out)
-            arrays[f"e{k}_quality"] = np.array(e["quality"])
-        arrays[f"e{k}_ramp"] = np.array(e["ramp"])
+            arrays[f"e{k}_{key}"] = getattr(e, key)
+        arrays[f"e{k}_f"] = np.array([e.f, e.volume])
+        if np.all(np.isfinite(e.quality)):             # NaN: the mesh did not move (left out)
+            arrays[f"e{k}_quality"] = np.array(e.quality)
+        arrays[f"e{k}_ramp"] = np.array(e.ramp)
     fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
     meta = {"scene": problem.scene.name, "stage": run.stage, "n_stage_evaluations": len(run.log),
             "scale": run.scale, "history": [h.row() for h in history], "stage_start": run.start.tolist(),
@@ -74,7 +76,7 @@ def stage_record(table: dict | None) -> Stage | None:
     return Stage(Continuation(**table), **structure)
 
 
-def read_stage(path, problem) -> tuple[dict, list[dict], State]:
+def read_stage(path, problem) -> tuple[dict, list[Evaluation | FailedEvaluation], State]:
     """``(meta, evaluations to replay, last state)`` of the checkpoint at ``path``, checked
     against ``problem`` (same scene and mesh, or :class:`~tofsi.core.errors.InputError`)."""
     meta, data = read_checkpoint(path)
@@ -84,13 +86,12 @@ def read_stage(path, problem) -> tuple[dict, list[dict], State]:
     for k in range(meta["n_stage_evaluations"]):
         gamma = data[f"e{k}_gamma"]
         if str(k) in failures:
-            replay.append({"gamma": gamma, "failed": True, **failures[str(k)]})
+            replay.append(FailedEvaluation(gamma, failures[str(k)]["error"], failures[str(k)]["diagnostic"]))
             continue
         f, volume = data[f"e{k}_f"]
-        replay.append({"gamma": gamma, "df": data[f"e{k}_df"], "g": data[f"e{k}_g"], "dg": data[f"e{k}_dg"],
-                       "f": float(f), "volume": float(volume),
-                       "quality": tuple(float(q) for q in data.get(f"e{k}_quality", [np.nan] * 3)),
-                       "ramp": tuple(int(r) for r in data.get(f"e{k}_ramp", [0, 0]))})
+        replay.append(Evaluation(gamma, float(f), data[f"e{k}_df"], data[f"e{k}_g"], data[f"e{k}_dg"],
+                                 float(volume), tuple(float(q) for q in data.get(f"e{k}_quality", NO_QUALITY)),
+                                 tuple(int(r) for r in data.get(f"e{k}_ramp", [0, 0]))))
     state = State(rho=data["rho"], converged=True,
                   fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})
     return meta, replay, state

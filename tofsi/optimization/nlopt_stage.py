@@ -1,10 +1,9 @@
 """One continuation stage run by NLopt (MMA or CCSAQ): the algorithms, the early stop, the run.
 
-Both optimizers -- the serial :class:`tofsi.optimization.optimize.Optimizer` and the
-distributed :mod:`tofsi.parallel.optimize_flow` -- minimize the stage's
-scaled objective ``f / f(stage start)`` over ``0 <= gamma <= 1`` under
-``g(gamma) <= 0`` with the same NLopt set-up, stop a stage early by the same
-rule (:func:`settled`) and name NLopt's end the same way (:func:`stop_reason`).
+:class:`tofsi.optimization.optimize.Optimizer` minimizes each stage's scaled objective
+``f / f(stage start)`` over ``0 <= gamma <= 1`` under ``g(gamma) <= 0`` with this
+NLopt set-up, stops a stage early by :func:`settled` and names NLopt's end by
+:func:`stop_reason`.
 """
 
 from __future__ import annotations

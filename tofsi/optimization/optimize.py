@@ -51,12 +51,12 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import nlopt
 import numpy as np
 
-from tofsi.mesh import quality
 from tofsi.core.blocks import Stage
 from tofsi.optimization.checkpoint import read_stage, stage_record, write_checkpoint
 from tofsi.coupling.coupled import continuation
@@ -66,6 +66,7 @@ from tofsi.optimization.final_state import FILE as FINAL_STATE, write_final_stat
 from tofsi.optimization.history import Iteration
 from tofsi.optimization.nlopt_stage import INITIAL_STEP, run_stage, settled
 from tofsi.optimization.oc import oc_step
+from tofsi.optimization.protocol import Evaluation, FailedEvaluation
 from tofsi.runs.output import atomic_write, write_csv, write_json
 from tofsi.optimization.stages import StageRun, StageStartFailed, bridge
 
@@ -83,22 +84,16 @@ class TrialFailed(Exception):
         self.error = error
 
 
-def mesh_quality(mesh, state) -> tuple[float, float, float]:
-    """``(min skewness, min area change, max area change)`` of the fluid mesh a state's flow
-    was solved on; NaN where the mesh did not move (one-way)."""
-    if state.x is None:
-        return (float("nan"),) * 3
-    q = quality.summary(mesh.points, mesh.points + state.mesh_displacement, mesh.quads)
-    return q.min_skewness, q.min_area_change, q.max_area_change
-
-
 def non_discreteness(rho: np.ndarray) -> float:
     """Measure of non-discreteness ``4 sum rho (1 - rho) / n`` in percent (0: black and white)."""
     return float(400.0 * np.mean(rho * (1.0 - rho)))
 
 
 class Optimizer:
-    """NLopt-driven design of a :class:`~tofsi.optimization.problem.Problem` with checkpoints in ``output``.
+    """NLopt-driven (or OC) design of a problem with checkpoints in ``output``: any
+    :class:`~tofsi.optimization.protocol.DesignProblem` -- the serial
+    :class:`~tofsi.optimization.problem.Problem`, or the distributed flow's problem driven from
+    rank 0 (:func:`tofsi.parallel.flow_problem.leading`).
 
     on_iteration : optional callback ``(Iteration) -> None`` (progress lines, tests)
     on_picture : optional callback ``(iteration, gamma, state) -> None`` (pictures, VTU)
@@ -122,64 +117,56 @@ class Optimizer:
         return self.output / "checkpoint.npz"
 
     # ---- evaluation with replay --------------------------------------------------------
-    def _evaluate(self, gamma: np.ndarray) -> dict:
+    def _evaluate(self, gamma: np.ndarray) -> Evaluation:
         run = self.run_stage
-        if run.last is not None and np.array_equal(run.last[0], gamma):
-            return run.last[1]
+        if run.last is not None and np.array_equal(run.last.gamma, gamma):
+            return run.last
         if run.replay:
             entry = run.replay.pop(0)
-            if not np.array_equal(entry["gamma"], gamma):
+            if not np.array_equal(entry.gamma, gamma):
                 raise InputError("--resume", str(self.checkpoint_path),
                                  "the checkpoint does not match this scene's optimization path")
         else:
             entry = self._compute(gamma)
         run.log.append(entry)
-        if entry.get("failed"):
-            raise TrialFailed(NumericalError(entry["error"], entry["diagnostic"]))
-        previous = run.last[0] if run.last is not None else gamma
-        run.last, run.failures_in_a_row = (gamma.copy(), entry), 0
+        if entry.failed:
+            raise TrialFailed(NumericalError(entry.error, entry.diagnostic))
+        previous = run.last.gamma if run.last is not None else gamma
+        run.last, run.failures_in_a_row = entry, 0
         self._record(gamma, entry, float(np.max(np.abs(gamma - previous))))
         return entry
 
-    def _compute(self, gamma: np.ndarray) -> dict:
+    def _compute(self, gamma: np.ndarray) -> Evaluation | FailedEvaluation:
         p = self.problem
         try:
-            f, df = p.evaluate(gamma)
-            g, dg = p.constraints(gamma)
-            state = p.solve(gamma)
-            volume = p.volume_fraction.value(p.model, state)
-            require_finite({p.scene.design.objective: f, "objective gradient": df, "constraints": g,
-                            "constraint gradients": dg, "volume": volume, "state": state.fields},
+            e = p.evaluation(gamma)
+            require_finite({p.scene.design.objective: e.f, "objective gradient": e.df, "constraints": e.g,
+                            "constraint gradients": e.dg, "volume": e.volume, "state": e.state.fields},
                            f"design iteration {len(self.history)}")
         except NumericalError as err:
-            return {"gamma": gamma.copy(), "failed": True, "error": str(err), "diagnostic": err.diagnostic}
-        ramp = state.reports.get("load_ramp", {})
-        return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
-                "volume": volume, "quality": mesh_quality(p.model.mesh, state),
-                "ramp": (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))),
-                "state": state.data()}             # the record: fields, no factorizations held
+            return FailedEvaluation(gamma.copy(), str(err), err.diagnostic)
+        return e
 
-    def _record(self, gamma, entry, change) -> None:
+    def _record(self, gamma, entry: Evaluation, change) -> None:
         run = self.run_stage
         if run.scale is None:                   # each stage scales by its first objective value
-            run.scale = abs(entry["f"]) if entry["f"] != 0 else 1.0
+            run.scale = abs(entry.f) if entry.f != 0 else 1.0
         stage = self.problem.stage              # the stage's record, as the problem solved with it
-        params, g = stage.params, entry["g"]
-        elapsed = entry.pop("time_s", None)            # a replayed row keeps its recorded time
-        it = Iteration(len(self.history), run.stage, float(entry["f"]), float(entry["f"] / run.scale),
-                       float(entry["volume"]), float(g[0]), change, params.beta, params.penalty,
+        params, g = stage.params, entry.g
+        elapsed = entry.time_s                  # a replayed row keeps its recorded time
+        it = Iteration(len(self.history), run.stage, float(entry.f), float(entry.f / run.scale),
+                       float(entry.volume), float(g[0]), change, params.beta, params.penalty,
                        params.brinkman_q, time.perf_counter() - self._t0 if elapsed is None else elapsed,
-                       stage.coupling or self.scene.effects.coupling, *entry["quality"],
-                       float(g[1]) if len(g) > 1 else float("nan"), self.fallbacks, *entry["ramp"])
+                       stage.coupling or self.scene.effects.coupling, *entry.quality,
+                       float(g[1]) if len(g) > 1 else float("nan"), self.fallbacks, *entry.ramp)
         self.history.append(it)
-        if "state" in entry:                           # computed now (not replayed): save
+        if entry.state is not None:                    # computed now (not replayed): save
             self._write_history()                      # the small results first: a full disk
             self._write_design(gamma)                  # keeps them (the line says so)
-            write_checkpoint(self.checkpoint_path, self.problem, run, self.history, entry["state"])
-            for earlier in run.log[:-1]:               # hold one state (and its factorizations)
-                earlier.pop("state", None)
+            write_checkpoint(self.checkpoint_path, self.problem, run, self.history, entry.state)
+            run.log[:-1] = [e if e.failed else replace(e, state=None) for e in run.log[:-1]]   # one state held
             if self.on_picture and (it.iteration % self.settings.output_every == 0):
-                self.on_picture(it.iteration, gamma, entry["state"], entry["df"])
+                self.on_picture(it.iteration, gamma, entry.state, entry.df)
         if self.on_iteration:
             self.on_iteration(it)
 
@@ -196,13 +183,13 @@ class Optimizer:
         run, previous = None, None
         if resume:
             meta, replay, state = read_stage(self.checkpoint_path, p)
-            skip = meta["history"][-1]["iteration"] + 1 - sum(not e.get("failed") for e in replay)
+            succeeded = [k for k, e in enumerate(replay) if not e.failed]
+            skip = meta["history"][-1]["iteration"] + 1 - len(succeeded)
             self.history = [Iteration.from_row(h) for h in meta["history"][:skip]]
-            succeeded = [e for e in replay if not e.get("failed")]
-            for e, row in zip(succeeded, meta["history"][skip:], strict=True):
-                e["time_s"] = row["time_s"]
+            for k, row in zip(succeeded, meta["history"][skip:], strict=True):
+                replay[k] = replace(replay[k], time_s=row["time_s"])
             if succeeded:                  # the last one's state is the checkpoint's: its evaluation
-                succeeded[-1]["state"] = state     # is written again (a snapshot an interrupt cut short)
+                replay[succeeded[-1]] = replace(replay[succeeded[-1]], state=state)   # is written again
             self.fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
             stage = meta["stage"]
             run = StageRun(stage, np.asarray(meta["stage_start"], dtype=float), meta["scale"], replay=replay,
@@ -263,14 +250,14 @@ class Optimizer:
             budget = max_evaluations - len(run.log)
             if budget <= 0:
                 self.stop_reason = "max_iter"
-                return run.last[0].copy() if run.last is not None else gamma
+                return run.last.gamma.copy() if run.last is not None else gamma
             try:
                 return self._nlopt(gamma, step, budget + (run.last is not None))   # + the restart's repeat
             except TrialFailed as failed:
                 self.fallbacks += 1
                 run.failures_in_a_row += 1
                 self._give_up_unless_fallback(failed.error)
-                gamma, step = run.last[0], 0.5 * step
+                gamma, step = run.last.gamma, 0.5 * step
                 log.info("design iteration %d: a trial design failed (%s); MMA restarts from the last "
                          "good design with move limit %.3g (fallback %d, %d in a row)", len(self.history),
                          failed.error, step, self.fallbacks, run.failures_in_a_row)
@@ -305,22 +292,22 @@ class Optimizer:
         def objective(x, grad):
             e = self._evaluate(np.asarray(x))
             if grad.size:
-                grad[:] = e["df"] / run.scale
+                grad[:] = e.df / run.scale
             if self._converged():
                 raise nlopt.ForcedStop
-            return float(e["f"] / run.scale)
+            return float(e.f / run.scale)
 
         def constraint(result, x, grad):
             e = self._evaluate(np.asarray(x))
-            result[:] = e["g"]
+            result[:] = e.g
             if grad.size:
-                grad[:] = e["dg"]
+                grad[:] = e.dg
 
         found, self.stop_reason = run_stage(self.settings.algorithm, gamma, step, objective, constraint,
                                             len(self.problem.constraint_names()), max_evaluations)
         if found is None:
             log.info("stage %d converged after %d evaluations", run.stage, len(run.log))
-            return run.last[0].copy()
+            return run.last.gamma.copy()
         return found
 
     def _run_oc_stage(self, max_evaluations: int, last_stage: bool) -> np.ndarray:
@@ -344,7 +331,7 @@ class Optimizer:
                          move, self.fallbacks)
                 if self.on_fallback:
                     self.on_fallback(len(self.history), self.fallbacks, move, failed.error)
-                gamma = self._oc_step(*run.last, move)
+                gamma = self._oc_step(run.last.gamma, run.last, move)
                 continue
             converged = self._converged()
             if converged and last_stage:
@@ -359,14 +346,14 @@ class Optimizer:
         self.stop_reason = "converged"
         return gamma
 
-    def _oc_step(self, gamma: np.ndarray, entry: dict, move: float) -> np.ndarray:
+    def _oc_step(self, gamma: np.ndarray, entry: Evaluation, move: float) -> np.ndarray:
         """One OC step from an evaluation, changing no variable by more than ``move``: the volume
         bound's gradient (its filter and projection included) is the phase's volume weight ``dV``."""
         p, d = self.problem, self.design
         solid = d.constraint == "solid"
-        dg = np.asarray(entry["dg"])[0]
+        dg = np.asarray(entry.dg)[0]
         dvolume = np.maximum(dg if solid else -dg, 1e-300)
-        return oc_step(gamma, entry["df"], dvolume, p.phase_fraction, d.volume_fraction, solid, move)
+        return oc_step(gamma, entry.df, dvolume, p.phase_fraction, d.volume_fraction, solid, move)
 
     def _write_history(self) -> None:
         rows = [h.row() for h in self.history]
@@ -382,13 +369,12 @@ class Optimizer:
     def finish(self, gamma: np.ndarray) -> dict:
         """Evaluate the final design (after the last stage's parameters) and summarize it."""
         p = self.problem
-        state = p.solve(gamma)
+        final = p.evaluation(gamma)
+        state, g = final.state, final.g
         rho = p.densities(gamma)[p.map.design]
-        g = p.constraints(gamma)[0]
         constraints = dict(zip(p.constraint_names(), map(float, g), strict=True))
         figures = {"scene": self.scene.name, "iterations": len(self.history),
-                   "objective": float(p.evaluate(gamma)[0]),
-                   "volume": float(p.volume_fraction.value(p.model, state)),
+                   "objective": float(final.f), "volume": float(final.volume),
                    "constraint": float(g[0]), "constraints": constraints,
                    "violated": {k: v for k, v in constraints.items() if v > VIOLATED},
                    "non_discreteness_percent": non_discreteness(rho),
@@ -409,7 +395,7 @@ class Optimizer:
         write_json(self.output / "result.json", figures)
         if self.on_picture:                # the gradient as recorded (a resumed run has no adjoint of it)
             last = self.run_stage.last if self.run_stage is not None else None
-            recorded = last[1]["df"] if last is not None and np.array_equal(last[0], gamma) else None
+            recorded = last.df if last is not None and np.array_equal(last.gamma, gamma) else final.df
             self.on_picture("final", gamma, state, recorded)
         self.final_state = state
         return figures

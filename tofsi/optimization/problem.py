@@ -4,6 +4,7 @@
     gamma = problem.initial_design()
     f, df = problem.evaluate(gamma)          # objective and its gradient
     g, dg = problem.constraints(gamma)       # g <= 0 is feasible, dg: (m, n_design)
+    e = problem.evaluation(gamma)            # all of it as one record (what the optimizer reads)
 
 One forward solve and one adjoint solve per quantity at each new design,
 cached (keyed by the design and the continuation parameters), because an
@@ -30,9 +31,20 @@ from tofsi.optimization.design import DesignMap
 from tofsi.optimization.design_file import read_design
 from tofsi.core.errors import InputError
 from tofsi.core.kept import Kept, input_key
+from tofsi.mesh import quality
 from tofsi.objectives.skewness import SoftMinSkewness
 from tofsi.objectives.volume import VolumeFraction
 from tofsi.core.registry import OBJECTIVES
+from tofsi.optimization.protocol import NO_QUALITY, Evaluation
+
+
+def mesh_quality(mesh, state) -> tuple[float, float, float]:
+    """``(min skewness, min area change, max area change)`` of the fluid mesh a state's flow
+    was solved on; NaN where the mesh did not move (one-way)."""
+    if state.x is None:
+        return NO_QUALITY
+    q = quality.summary(mesh.points, mesh.points + state.mesh_displacement, mesh.quads)
+    return q.min_skewness, q.min_area_change, q.max_area_change
 
 
 @dataclass(eq=False)
@@ -48,7 +60,8 @@ class DesignPoint:
 
 
 class Problem:
-    """The design problem of a scene with a design region."""
+    """The design problem of a scene with a design region (a
+    :class:`~tofsi.optimization.protocol.DesignProblem`)."""
 
     def __init__(self, scene, mesh=None):
         if not scene.has_design:
@@ -198,6 +211,18 @@ class Problem:
                 dg.append(-self._total(point, quality))
             point.constraints = (np.array(g), np.vstack(dg))
         return point.constraints
+
+    def evaluation(self, gamma) -> Evaluation:
+        """Objective, constraints, their gradients, the volume, the moved mesh's quality and the
+        inflow ramp's counts of design ``gamma`` as one record, with the state's fields."""
+        f, df = self.evaluate(gamma)
+        g, dg = self.constraints(gamma)
+        point = self.point(gamma)
+        state = point.state
+        ramp = state.reports.get("load_ramp", {})
+        return Evaluation(point.gamma, f, df, g, dg, self.volume_fraction.value(self.model, state),
+                          mesh_quality(self.model.mesh, state),
+                          (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))), state.data())
 
     def _total(self, point: "DesignPoint", quantity) -> np.ndarray:
         """``dq/dgamma`` of a quantity (``value``, ``partials``) at a point: the adjoint, then the

@@ -18,6 +18,7 @@ import numpy as np
 
 from tofsi.core.blocks import Stage
 from tofsi.core.errors import NumericalError
+from tofsi.optimization.protocol import Evaluation
 
 
 class StageStartFailed(Exception):
@@ -56,9 +57,9 @@ class StageRun:
     stage: int
     start: np.ndarray
     scale: float | None = None
-    log: list = field(default_factory=list)
+    log: list = field(default_factory=list)     # Evaluation and FailedEvaluation records, in order
     replay: list = field(default_factory=list)
-    last: tuple | None = None                   # (gamma, entry) of the last good evaluation
+    last: Evaluation | None = None              # the last good evaluation
     failures_in_a_row: int = 0
     fallbacks_at_start: int = 0                 # the run's fallbacks before the stage
     record: Stage | None = None                 # the record it runs with (a bridge's, or the stage's)

@@ -8,7 +8,7 @@
 * :class:`~tofsi.parallel.flow_adjoint.SlabObjective` -- a flow objective and its adjoint
   gradient in the densities, by slabs;
 * :class:`~tofsi.parallel.flow_problem.DistributedFlowProblem` -- a flow-only design
-  problem's ``evaluate`` / ``constraints`` (replicated design map and volume weights);
-* :mod:`tofsi.parallel.optimize_flow` -- MMA on rank 0 with the design broadcast
-  (``mpiexec -n P python -m tofsi.parallel.optimize_flow SCENE``).
+  problem (a :class:`~tofsi.optimization.protocol.DesignProblem`: replicated design map and
+  volume weights, the flow by slabs), driven from rank 0 by ``tofsi optimize`` under
+  ``mpiexec -n P`` (:func:`~tofsi.parallel.flow_problem.leading`, :func:`~tofsi.parallel.flow_problem.serve`).
 """

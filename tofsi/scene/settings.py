@@ -160,6 +160,10 @@ class SolverSettings:
                                    "robust on a shared machine; 0: leave as the environment says)")
     max_memory_gb: float = option(0.0, ge=0, doc="refuse a solve whose estimated memory exceeds "
                                                  "this [GB] (0: the machine's available memory)")
+    flow_amg: str = option("hypre", choices=("hypre", "gamg"),
+                           doc="AMG of the velocity block of the distributed flow (tofsi optimize of a "
+                               "flow-only scene under mpiexec, docs/parallel.md): hypre's BoomerAMG or "
+                               "PETSc's GAMG")
 
 
 TUNE_PARAMETRIZATIONS = ("layers", "profile")
