@@ -153,3 +153,30 @@ def test_double_pipe_objective_lies_between_the_published_values(tmp_path):
     middle = np.abs(c[:, 0] - 0.5) < 0.3
     assert fluid[middle & (np.abs(c[:, 1] - 0.5) < 0.05)].mean() < 0.2
     assert result["constraint"] <= 1e-3
+
+
+def test_the_serial_problem_is_a_design_problem_and_its_evaluation_is_one_record():
+    """The optimizer's protocol: the serial Problem implements it, and its Evaluation holds what
+    evaluate and constraints answer (the same arrays), the volume and the state's record."""
+    from tofsi.optimization.protocol import DesignProblem, Evaluation
+    problem = tofsi.Problem(tofsi.load_scene(scene_path("beam_in_channel_optimization"), TINY))
+    assert isinstance(problem, DesignProblem)
+    gamma = problem.initial_design()
+    e = problem.evaluation(gamma)
+    assert isinstance(e, Evaluation) and not e.failed and problem.evaluations == 1
+    f, df = problem.evaluate(gamma)
+    g, dg = problem.constraints(gamma)
+    assert e.f == f and np.array_equal(e.df, df) and np.array_equal(e.g, g) and np.array_equal(e.dg, dg)
+    assert e.volume == problem.volume(gamma) and e.state.linearizations == {}
+    assert {"u", "w"} <= set(e.state.fields) and e.ramp == (0, 0)
+
+
+def test_optimize_under_mpiexec_refuses_a_scene_the_distributed_flow_cannot_run(cli, tmp_path, monkeypatch):
+    """Under mpiexec (two ranks, as the launcher's environment says) ``tofsi optimize`` of a
+    two-way scene is refused by name -- with the serial route named -- before petsc4py or a
+    mesh is needed; ``solver.linear_solver = petsc`` keeps the serial problem on every rank."""
+    monkeypatch.setenv("OMPI_COMM_WORLD_SIZE", "2")
+    monkeypatch.setenv("OMPI_COMM_WORLD_RANK", "0")
+    run = cli("optimize", scene_path("beam_in_channel_optimization"), *[a for s in TINY for a in ("--set", s)],
+              "--output", tmp_path / "o")
+    assert run.returncode == 2 and "effects" in run.stderr and "solver.linear_solver = 'petsc'" in run.stderr
