@@ -11,52 +11,42 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofsi.fem.assembly import assemble_vector, element_dofs
-from tofsi.fem.complex_step import corner_derivatives
-from tofsi.objectives import Objective
+from tofsi.objectives import FlowObjective
 from tofsi.core.registry import OBJECTIVES
 
 
 @OBJECTIVES.register
-class Dissipation(Objective):
+class Dissipation(FlowObjective):
     """Borrvall & Petersson's functional ``1/2 int (mu grad v : grad v + alpha |v|^2)`` [W/m]."""
 
     name, needs, label, units = "dissipation", "w", "dissipation functional", "W/m"
 
-    @staticmethod
-    def element_values(flow, Xe, w, rho, params=None) -> np.ndarray:
-        ve, _ = flow.split(w)
-        _, wd, v, L = flow.element.velocity_fields(Xe, ve)
-        alpha = flow.alpha(rho, params)
-        return 0.5 * np.sum(wd * (flow.settings.viscosity * np.sum(L * L, axis=(-1, -2))
-                                  + alpha[:, None] * np.sum(v * v, axis=-1)), axis=1)
+    def element_values(self, view) -> np.ndarray:
+        _, wd, v, L = view.fields
+        c = view.coefficients
+        return 0.5 * np.sum(wd * (c.viscosity * np.sum(L * L, axis=(-1, -2))
+                                  + c.alpha[:, None] * np.sum(v * v, axis=-1)), axis=1)
 
-    def value(self, model, state) -> float:
-        flow = model.flow
-        return float(self.element_values(flow, flow.corners(state.mesh_displacement), state.w, state.rho,
-                                         state.params).sum())
-
-    def partials(self, model, state) -> dict:
-        flow, X, rho, params = model.flow, state.mesh_displacement, state.rho, state.params
-        Xe = flow.corners(X)
-        ve, _ = flow.split(state.w)
-        el = flow.element
-        grad, wd, v, _ = el.velocity_fields(Xe, ve)                                # (E, G, k, 2)
+    def element_partials(self, view) -> tuple[np.ndarray, np.ndarray]:
+        """``w``: ``int mu grad v : grad N_a + alpha v N_a`` per velocity dof; ``rho``:
+        ``1/2 alpha'(rho) int |v|^2``."""
+        el, c, ve = view.element, view.coefficients, view.ve
+        grad, wd, v, _ = view.fields                                                # (E, G, k, 2)
         E, G, k = grad.shape[:3]
         gk = grad.reshape(E, G, 2 * k)
         M = np.matmul((gk * wd[..., None]).transpose(0, 2, 1), gk).reshape(E, k, 2, k, 2)
         lap = M[:, :, 0, :, 0] + M[:, :, 1, :, 1]
         mass = np.matmul(el.N.T[None] * wd[:, None, :], el.N)
-        A = flow.settings.viscosity * lap + flow.alpha(rho, params)[:, None, None] * mass   # (E, k, k)
+        A = c.viscosity * lap + c.alpha[:, None, None] * mass                       # (E, k, k)
         gv = np.matmul(A, ve)                                                       # (E, k, 2)
-        ge = np.zeros(flow.dofs.shape)
+        ge = np.zeros(view.dofs.shape)
         ge[:, :2 * k] = gv.reshape(E, 2 * k)
-        out = {"w": assemble_vector(flow.dofs, ge, flow.size),
-               "rho": 0.5 * flow.brinkman(params).derivative(rho) * np.sum(wd * np.sum(v * v, axis=-1), axis=1)}
-        if state.x is not None:                       # the flow saw the moved mesh
-            if el.dissipation_shape is not None:      # Taylor-Hood: analytic
-                dphi = el.dissipation_shape(Xe, ve, flow.alpha(rho, params), flow.settings.viscosity)
-            else:
-                dphi = corner_derivatives(lambda Xc: self.element_values(flow, Xc, state.w, rho, params), Xe)
-            out["x"] = assemble_vector(element_dofs(model.mesh.quads, 2), dphi, 2 * model.mesh.n_nodes)
-        return out
+        return ge, 0.5 * c.brinkman.derivative(view.rho) * np.sum(wd * np.sum(v * v, axis=-1), axis=1)
+
+    def shape_elements(self, view) -> np.ndarray:
+        """Taylor-Hood: analytic (:func:`~tofsi.physics.fluid_shape.dissipation_shape`); else the
+        complex step."""
+        el, c = view.element, view.coefficients
+        if el.dissipation_shape is None:
+            return super().shape_elements(view)
+        return el.dissipation_shape(view.Xe, view.ve, c.alpha, c.viscosity)

@@ -6,8 +6,11 @@ objective ``f(w, rho) = sum_e f_e(w_e, rho_e)`` each rank
 
 * evaluates ``f_e`` and the element partials ``df_e/dw_e`` ``(E_r, 22)``,
   ``df_e/drho_e`` ``(E_r,)`` on *its own elements* with the registry objective's
-  own kernels (read through :class:`SlabView`), and adds the element partials
-  into a distributed vector ``g``;
+  own methods (a :class:`~tofsi.objectives.FlowObjective`'s ``element_values`` and
+  ``element_partials``) on the slab's :class:`~tofsi.physics.flow_view.FlowView`
+  (:meth:`~tofsi.parallel.flow_system.DistributedFlow.view`: the flow's own record,
+  its dofs into the ghosted state), and adds the element partials into a
+  distributed vector ``g``;
 * solves ``J_c^T lam = -g`` (fixed rows of ``g`` zeroed: the serial adjoint's
   homogenized multipliers, :class:`tofsi.fields.flow.FlowLinearization`)
   with the Newton's FGMRES and Schur fieldsplit, transposed
@@ -23,98 +26,52 @@ ends with the same value and the same replicated ``(E,)`` gradient.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from tofsi.core.errors import InputError
-
-SLAB_OBJECTIVES = ("dissipation", "dissipation-strain")      # element sums of the velocity only
-
-
-class SlabView:
-    """The flow of a :class:`DistributedFlow` restricted to its rank's elements, as an objective's
-    kernels read a flow: ``split`` (of the ghosted state, ``(m,)``), ``corners``, ``alpha``,
-    ``brinkman``, ``element``, ``settings``, ``dofs`` (into the ghosted state) and ``size``."""
-
-    def __init__(self, engine):
-        self.engine = engine
-        self.element, self.settings = engine.flow.element, engine.flow.settings
-        self.dofs = engine.local                      # (E_r, 22) into engine.ghosts
-        self.size = engine.ghosts.size
-
-    def split(self, w_ghost: np.ndarray):
-        we = np.asarray(w_ghost)[self.dofs]                                  # (E_r, 2k + 4)
-        k = 2 * self.element.nodes_per_element                               # the velocity's element dofs
-        return we[:, :k].reshape(len(we), -1, 2), we[:, k:]
-
-    def corners(self, x=None) -> np.ndarray:
-        return self.engine.corners(x)
-
-    def brinkman(self, params=None):
-        return self.engine.flow.brinkman(params)
-
-    def alpha(self, rho_slab: np.ndarray, params=None) -> np.ndarray:
-        """Friction of the slab's elements from their densities ``(E_r,)``."""
-        return self.brinkman(params)(rho_slab)
+from tofsi.core.registry import OBJECTIVES
+from tofsi.fem.assembly import assemble_vector
+from tofsi.objectives import FlowObjective
 
 
-@dataclass(frozen=True)
-class SlabModel:
-    """What an objective reads of the model: the slab's flow (the mesh for shape partials)."""
-
-    flow: SlabView
-    mesh: object
+def slab_objectives() -> list[str]:
+    """The registry's objectives the slabs can differentiate: those summed over the flow's
+    elements (:class:`~tofsi.objectives.FlowObjective`)."""
+    return [o.name for o in OBJECTIVES if issubclass(o, FlowObjective)]
 
 
-@dataclass(frozen=True)
-class SlabState:
-    """What a flow objective reads of a state, on one slab: the ghosted ``w``, the slab's ``rho``."""
-
-    w: np.ndarray
-    rho: np.ndarray
-    params: object
-    x: None = None
-    mesh_displacement: None = None
+def check_objective(name: str) -> None:
+    """Refuse an objective that is no sum over the flow's elements (before anything is built)."""
+    if not issubclass(OBJECTIVES.get(name), FlowObjective):
+        raise InputError("design.objective", name, f"one of {slab_objectives()} for the distributed flow "
+                         "(a sum over the flow's elements: tofsi.objectives.FlowObjective)")
 
 
 class SlabObjective:
     """A registry flow objective (``design.objective``) and its adjoint gradient by slabs."""
 
     def __init__(self, engine, objective):
-        if objective.name not in SLAB_OBJECTIVES:
-            raise InputError("design.objective", objective.name,
-                             f"one of {list(SLAB_OBJECTIVES)} for the distributed flow")
+        check_objective(objective.name)
         self.engine, self.objective = engine, objective
-        self.view = SlabView(engine)
-        self.model = SlabModel(self.view, engine.flow.mesh)
         self.mpi = engine.comm.tompi4py()
-
-    def state(self, rho: np.ndarray, params) -> SlabState:
-        e = self.engine
-        return SlabState(e.ghost_values(e.w).copy(), np.asarray(rho, dtype=float)[e.part.elements], params)
 
     def gradient(self, rho: np.ndarray, params) -> tuple[float, np.ndarray]:
         """``(f, df/drho (E,))`` at the engine's converged state, the same on every rank."""
         from mpi4py import MPI
-        e, view = self.engine, self.view
-        state = self.state(rho, params)
-        partials = self.objective.partials(self.model, state)      # "w": (m,) ghosted, "rho": (E_r,)
-        g = e.vector_of_ghosts(-partials["w"])                      # -df/dw, distributed
+        e = self.engine
+        view = e.view(rho, params)                                  # the slab's flow
+        dw, drho = self.objective.element_partials(view)            # (E_r, 22), (E_r,)
+        g = e.vector_of_ghosts(-assemble_vector(view.dofs, dw, view.size))       # -df/dw, distributed
         lam = e.solve_transpose(g)
-        lam_e = e.ghost_values(lam)[e.local]                                         # (E_r, 22)
-        ve, pe = view.split(state.w)
-        Xe = e.corners(None)
-        flow = e.flow
-        dR_dalpha = flow.element.alpha_partial(Xe, ve, pe, view.alpha(state.rho, params), flow.density,
-                                               flow.settings.viscosity, flow.symmetric, None)   # (E_r, 22)
-        local = np.zeros(flow.mesh.n_elements)
-        local[e.part.elements] = (partials.get("rho", 0.0)
-                                  + view.brinkman(params).derivative(state.rho)
-                                  * np.einsum("ea,ea->e", dR_dalpha, lam_e))
+        lam_e = e.ghost_values(lam)[view.dofs]                                   # (E_r, 22)
+        c = view.coefficients
+        dR_dalpha = view.element.alpha_partial(view.Xe, view.ve, view.pe, c.alpha, c.density, c.viscosity,
+                                               c.symmetric, None, view.basis)   # (E_r, 22)
+        local = np.zeros(e.flow.mesh.n_elements)
+        local[e.part.elements] = drho + c.brinkman.derivative(view.rho) * np.einsum("ea,ea->e", dR_dalpha, lam_e)
         total = np.empty_like(local)
         self.mpi.Allreduce(local, total, op=MPI.SUM)
-        value = float(self.mpi.allreduce(self.objective.value(self.model, state)))
+        value = float(self.mpi.allreduce(float(self.objective.element_values(view).sum())))
         g.destroy()
         lam.destroy()
         return value, total

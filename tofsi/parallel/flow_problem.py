@@ -2,8 +2,8 @@
 
 :class:`DistributedFlowProblem` is a :class:`~tofsi.optimization.protocol.DesignProblem`
 for a scene whose only physics is the flow (``effects.structure = "none"``,
-``effects.mesh_motion = "none"``; an objective with slab kernels,
-:data:`~tofsi.parallel.flow_adjoint.SLAB_OBJECTIVES`): it answers what
+``effects.mesh_motion = "none"``; an objective summed over the flow's elements,
+a :class:`~tofsi.objectives.FlowObjective`): it answers what
 :class:`tofsi.optimization.problem.Problem` answers, with the same numbers (to the
 solvers' tolerances), but the flow solved and differentiated by slabs
 (:class:`~tofsi.parallel.flow_system.DistributedFlow`,
@@ -42,7 +42,7 @@ from tofsi.core.errors import InputError, NumericalError
 from tofsi.core.kept import Kept, input_key
 from tofsi.optimization.problem import Problem
 from tofsi.optimization.protocol import Evaluation
-from tofsi.parallel.flow_adjoint import SLAB_OBJECTIVES, SlabObjective
+from tofsi.parallel.flow_adjoint import SlabObjective, check_objective
 from tofsi.parallel.flow_system import DistributedFlow
 
 log = logging.getLogger(__name__)
@@ -56,9 +56,7 @@ def check(scene) -> None:
                          "a flow-only scene (structure and mesh_motion 'none') for the distributed flow "
                          "under mpiexec; or solver.linear_solver = 'petsc' (every rank runs the serial "
                          "problem, MUMPS factorizes across them)")
-    if scene.design.objective not in SLAB_OBJECTIVES:
-        raise InputError("design.objective", scene.design.objective,
-                         f"one of {list(SLAB_OBJECTIVES)} for the distributed flow")
+    check_objective(scene.design.objective)
 
 
 class DistributedFlowProblem:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -37,6 +38,7 @@ from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.linalg.iterative import FLOOR
 from tofsi.parallel.partition import SlabPartition
 from tofsi.physics.flow_preconditioner import element_areas
+from tofsi.physics.flow_view import FlowView
 from tofsi.physics.fluid_kernel import fluid_element
 
 if TYPE_CHECKING:                              # annotations only: petsc4py is imported lazily
@@ -181,6 +183,17 @@ class DistributedFlow:
         v.setValues(self.ghosts, np.asarray(values, dtype=float), addv=PETSc.InsertMode.ADD_VALUES)
         v.assemble()
         return v
+
+    def view(self, rho, params=None) -> FlowView:
+        """The converged state's flow on this rank's elements, as objectives read it (the
+        flow's own :class:`~tofsi.physics.flow_view.FlowView`: its dofs index the ghosted state)."""
+        flow, elements = self.flow, self.part.elements
+        rho_slab = np.asarray(rho, dtype=float)[elements]
+        c = flow.coefficients(rho, params)
+        Xe = self.corners(None)
+        return FlowView(flow.element, Xe, self.ghost_values(self.w)[self.local], self.local, self.ghosts.size,
+                        rho_slab, replace(c, alpha=c.alpha[elements]),
+                        flow.element.basis(Xe) if flow.element.keeps_basis else None)
 
     # ---- assembly -----------------------------------------------------------------
     def corners(self, x=None) -> np.ndarray:

@@ -44,6 +44,7 @@ from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.physics.flow_boundary import FlowBoundary
 from tofsi.physics.flow_preconditioner import flow_preconditioner
 from tofsi.physics.fluid_elements import ELEMENTS
+from tofsi.physics.flow_view import FlowCoefficients, FlowView
 from tofsi.physics.fluid_kernel import CHUNK
 
 log = logging.getLogger(__name__)
@@ -119,6 +120,7 @@ class Flow:
         self.kept_elements = Kept()       # (R_e, K_e) of the last Jacobian evaluation
         self.kept_residuals = Kept()      # R_e of the last residual-only evaluation
         self.kept_scale = Kept()          # the force scale of the last mesh position and density
+        self.kept_basis = Kept()          # the element basis of the last configuration (keeps_basis)
         self._shape_pattern = None        # CSR pattern of F_x
 
     # ---- geometry and state -------------------------------------------------------
@@ -156,14 +158,39 @@ class Flow:
         """The state with the boundary values (at the load of ``params``) and zero elsewhere."""
         return self.boundary_values(params).copy()
 
+    def basis(self, x=None):
+        """The element basis of the mesh moved by ``x`` where the element type keeps it
+        (:attr:`~tofsi.physics.fluid_elements.FluidElement.keeps_basis`; else None): kept per
+        configuration, keyed by ``x`` (a one-way flow's Newton steps, line search, adjoint and
+        objectives all read one)."""
+        if not self.element.keeps_basis:
+            return None
+        return self.kept_basis.get(input_key(None if x is None else np.asarray(x)),
+                                   lambda: self.element.basis(self.corners(x)))
+
+    def coefficients(self, rho, params: Continuation | None = None) -> FlowCoefficients:
+        """The kernels' frozen coefficients at densities ``rho`` (None: all fluid) and the stage's
+        numbers ``params``."""
+        brinkman = self.brinkman(params)
+        alpha = brinkman(np.zeros(self.mesh.n_elements) if rho is None else rho)
+        return FlowCoefficients(alpha, brinkman, self.density, self.settings.viscosity, self.symmetric)
+
+    def view(self, w, x=None, rho=None, params: Continuation | None = None) -> FlowView:
+        """The flow of state ``w`` on the mesh moved by ``x`` at densities ``rho``, as objectives
+        read it (:class:`~tofsi.physics.flow_view.FlowView`, every element)."""
+        rho = np.zeros(self.mesh.n_elements) if rho is None else np.asarray(rho, dtype=float)
+        return FlowView(self.element, self.corners(x), np.asarray(w)[self.dofs], self.dofs, self.size, rho,
+                        self.coefficients(rho, params), self.basis(x))
+
     # ---- residual, Jacobian, partials ---------------------------------------------
     def element_residual(self, w, x, rho, jacobian=True, density=None, Xe=None, params=None):
         """Element residuals and Jacobians on the mesh moved by ``x`` (or on corners ``Xe``)."""
         ve, pe = self.split(w)
+        basis = self.basis(x) if Xe is None else None
         Xe = self.corners(x) if Xe is None else Xe
         return self.element.residual(Xe, ve, pe, self.alpha(rho, params),
                                      self.density if density is None else density,
-                                     self.settings.viscosity, self.symmetric, self.force_at(Xe), jacobian)
+                                     self.settings.viscosity, self.symmetric, self.force_at(Xe), jacobian, basis)
 
     def force_at(self, Xe):
         """The body force ``(E, G, 2)`` at the element kernel's points of corners ``Xe``, or None."""
@@ -213,12 +240,13 @@ class Flow:
             return
         ve, pe = self.split(w)
         Xe = self.corners(x)
-        alpha, force = self.alpha(rho, params), self.force_at(Xe)
+        alpha, force, basis = self.alpha(rho, params), self.force_at(Xe), self.basis(x)
         density = self.density if density is None else density
         for a in range(0, len(Xe), chunk):
             s = slice(a, min(a + chunk, len(Xe)))
             yield (s, *self.element.residual(Xe[s], ve[s], pe[s], alpha[s], density, self.settings.viscosity,
-                                              self.symmetric, None if force is None else force[s], True))
+                                              self.symmetric, None if force is None else force[s], True,
+                                              None if basis is None else (basis[0][s], basis[1][s])))
 
     def jacobian(self, w, x=None, rho=None, density=None, params=None):
         """``F_w`` as the constrained CSR matrix (identity on fixed dofs) and ``F``. With
@@ -266,7 +294,8 @@ class Flow:
         ve, pe = self.split(w)
         Xe = self.corners(x)
         return self.element.alpha_partial(Xe, ve, pe, self.alpha(rho, params), self.density,
-                                          self.settings.viscosity, self.symmetric, self.force_at(Xe))
+                                          self.settings.viscosity, self.symmetric, self.force_at(Xe),
+                                          self.basis(x))
 
     def density_vectors(self, w, x, rho, params=None) -> np.ndarray:
         """``dF_e/drho_e`` ``(E, m)``: the Brinkman friction's derivative per element."""
@@ -407,10 +436,10 @@ class Flow:
         flow loses to viscosity and to Brinkman friction (the symmetric strain rate,
         whatever the residual's form).
         """
-        ve, _ = self.split(w)
-        grad, wdet, v, L = self.element.velocity_fields(self.corners(x), ve)
+        view = self.view(w, x, rho, params)
+        _, wdet, v, L = view.fields
         eps = 0.5 * (L + np.swapaxes(L, -1, -2))
-        alpha = self.alpha(rho, params)
+        alpha = view.coefficients.alpha
         viscous = float(np.sum(2 * self.settings.viscosity * np.einsum("egij,egij->eg", eps, eps) * wdet))
         friction = float(np.sum(alpha[:, None] * np.einsum("egi,egi->eg", v, v) * wdet))
         out = {"dissipated_power": viscous + friction, "viscous_dissipation": viscous,

@@ -38,7 +38,10 @@ class FluidElement:
     block_preconditioned : the iterative path's block preconditioner and the distributed flow's
         Schur complement approximation are written for it;
     fill : the kind of LU fill its unknowns make (:data:`tofsi.runs.memory.FILL`);
-    unknowns(grid) : its unknowns on a mesh of a :class:`~tofsi.fields.base.GridSize`.
+    unknowns(grid) : its unknowns on a mesh of a :class:`~tofsi.fields.base.GridSize`;
+    keeps_basis : the flow keeps its velocity basis per configuration and hands it to the kernel
+        (equal order: the kernel reads it in every evaluation, 36 floats per element; Taylor-Hood's
+        kernel forms its own at 3 x 3 points, whose 171 floats per element a flow does not hold).
     """
 
     name: str
@@ -47,18 +50,27 @@ class FluidElement:
     velocity_on_corners: bool
     block_preconditioned: bool
     fill: str
+    keeps_basis: bool
     POINTS: np.ndarray
     WEIGHTS: np.ndarray
     N: np.ndarray
 
     @classmethod
-    def velocity_fields(cls, Xe, ve):
-        """Basis gradients ``(E, G, k, 2)``, weights ``w det J`` ``(E, G)``, ``v`` ``(E, G, 2)`` and
-        ``grad v`` ``(E, G, 2, 2)`` (``L_ij = dv_i/dx_j``) of element velocities ``ve`` ``(E, k, 2)``."""
+    def basis(cls, Xe):
+        """The velocity basis of corners ``Xe``: physical gradients ``(E, G, k, 2)`` and weights
+        ``w det J`` ``(E, G)`` at the kernel's points."""
         grad, det = physical_gradients(Xe, cls.degree, cls.POINTS)
+        return grad, det * cls.WEIGHTS
+
+    @classmethod
+    def velocity_fields(cls, Xe, ve, basis=None):
+        """Basis gradients ``(E, G, k, 2)``, weights ``w det J`` ``(E, G)``, ``v`` ``(E, G, 2)`` and
+        ``grad v`` ``(E, G, 2, 2)`` (``L_ij = dv_i/dx_j``) of element velocities ``ve`` ``(E, k, 2)``
+        (``basis``: :meth:`basis` of ``Xe`` where the caller holds it)."""
+        grad, weights = cls.basis(Xe) if basis is None else basis
         v = np.matmul(cls.N, ve)
         L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)
-        return grad, det * cls.WEIGHTS, v, L
+        return grad, weights, v, L
 
 
 class TaylorHood(FluidElement):
@@ -70,6 +82,7 @@ class TaylorHood(FluidElement):
     velocity_on_corners = False         # the velocity has nodes of its own (written to the Q2 nodes as is)
     block_preconditioned = True         # the iterative path's and the distributed flow's preconditioners
     fill = "flow"                       # its LU fill (tofsi.runs.memory.FILL)
+    keeps_basis = False                 # its kernel forms its own basis
 
     @staticmethod
     def unknowns(grid) -> int:
@@ -113,8 +126,9 @@ class TaylorHood(FluidElement):
 
     # ---- kernels --------------------------------------------------------------------------
     @classmethod
-    def residual(cls, Xe, ve, pe, alpha, density, viscosity, symmetric, force=None, jacobian=True):
-        """``(R_e (E, 22), K_e (E, 22, 22) or None)``; ``force`` (E, G, 2) [N/m^3] at the points."""
+    def residual(cls, Xe, ve, pe, alpha, density, viscosity, symmetric, force=None, jacobian=True, basis=None):
+        """``(R_e (E, 22), K_e (E, 22, 22) or None)``; ``force`` (E, G, 2) [N/m^3] at the points
+        (``basis``: None, the kernel forms its own)."""
         Re, Ke = fluid_kernel.fluid_elements(Xe, ve, pe, alpha, density, viscosity, symmetric, jacobian)
         if force is not None:
             _, det = physical_gradients(Xe, 1, cls.POINTS)
@@ -123,8 +137,8 @@ class TaylorHood(FluidElement):
         return Re, Ke
 
     @staticmethod
-    def alpha_partial(Xe, ve, pe, alpha, density, viscosity, symmetric, force=None) -> np.ndarray:
-        """``dR_e/dalpha_e`` ``(E, 22)``: ``int N_a v_i`` on the velocity rows."""
+    def alpha_partial(Xe, ve, pe, alpha, density, viscosity, symmetric, force=None, basis=None) -> np.ndarray:
+        """``dR_e/dalpha_e`` ``(E, 22)``: ``int N_a v_i`` on the velocity rows (``basis``: None)."""
         return fluid_kernel.brinkman_partial(Xe, ve)
 
     @classmethod
@@ -148,6 +162,7 @@ class EqualOrder(FluidElement):
     velocity_on_corners = True
     block_preconditioned = False        # the block preconditioners are written for Taylor-Hood
     fill = "flow-q1q1"
+    keeps_basis = True
 
     @staticmethod
     def unknowns(grid) -> int:
@@ -178,15 +193,16 @@ class EqualOrder(FluidElement):
         return mesh.grid_positions()
 
     @staticmethod
-    def residual(Xe, ve, pe, alpha, density, viscosity, symmetric, force=None, jacobian=True):
-        """``(R_e (E, 12), K_e (E, 12, 12) or None)``; ``force`` (E, G, 2) [N/m^3] at the points."""
+    def residual(Xe, ve, pe, alpha, density, viscosity, symmetric, force=None, jacobian=True, basis=None):
+        """``(R_e (E, 12), K_e (E, 12, 12) or None)``; ``force`` (E, G, 2) [N/m^3] at the points;
+        ``basis``: the flow's kept :meth:`basis` of ``Xe`` (None: formed here)."""
         return fluid_kernel_q1q1.element_residual(Xe, ve, pe, alpha, density, viscosity, symmetric, force,
-                                                  jacobian)
+                                                  jacobian, basis)
 
     @staticmethod
-    def alpha_partial(Xe, ve, pe, alpha, density, viscosity, symmetric, force=None) -> np.ndarray:
+    def alpha_partial(Xe, ve, pe, alpha, density, viscosity, symmetric, force=None, basis=None) -> np.ndarray:
         """``dR_e/dalpha_e`` ``(E, 12)``, the stabilization's friction and ``tau``'s included."""
-        return fluid_kernel_q1q1.alpha_partial(Xe, ve, pe, alpha, density, viscosity, symmetric, force)
+        return fluid_kernel_q1q1.alpha_partial(Xe, ve, pe, alpha, density, viscosity, symmetric, force, basis)
 
     @staticmethod
     def shape(Xe, ve, pe, alpha, density, viscosity, symmetric, force_at=None):

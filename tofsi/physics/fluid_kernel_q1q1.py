@@ -49,21 +49,17 @@ from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.geometry import physical_gradients
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
-from tofsi.core.kept import Kept, input_key
 
 POINTS, WEIGHTS = gauss_square(2)
 N1, _ = shape_functions(1, POINTS)            # (G, 4)
-_BASIS = Kept()                               # the last configuration's basis, keyed by its corners
 
 
 def basis(Xe):
-    """Physical gradients ``(E, G, 4, 2)`` and weights ``w det J`` ``(E, G)`` of corners ``Xe``;
-    the last configuration's are kept (keyed by the corners' values: a one-way flow's Newton
-    steps, line search and adjoint all see the same mesh)."""
-    def build():
-        grad, det = physical_gradients(Xe, 1, POINTS)
-        return grad, det * WEIGHTS
-    return _BASIS.get(input_key(np.asarray(Xe)), build)
+    """Physical gradients ``(E, G, 4, 2)`` and weights ``w det J`` ``(E, G)`` of corners ``Xe``
+    (a flow keeps its configuration's and passes it in: a one-way flow's Newton steps, line
+    search and adjoint all see the same mesh)."""
+    grad, det = physical_gradients(Xe, 1, POINTS)
+    return grad, det * WEIGHTS
 
 
 def diagonal_squared(Xe):
@@ -89,8 +85,8 @@ def stabilization(Xe, ve, alpha, density: float, viscosity: float):
 class _Fields:
     """The quantities at the Gauss points shared by the residual and its derivatives."""
 
-    def __init__(self, Xe, ve, pe, alpha, density, viscosity, symmetric, force):
-        grad, w = basis(Xe)                                          # (E, G, 4, 2), (E, G)
+    def __init__(self, Xe, ve, pe, alpha, density, viscosity, symmetric, force, kept=None):
+        grad, w = basis(Xe) if kept is None else kept                # (E, G, 4, 2), (E, G)
         self.grad, self.w = grad, w
         self.v = np.matmul(N1, ve)                                   # (E, G, 2)
         self.L = np.matmul(np.swapaxes(ve, 1, 2)[:, None], grad)    # L_ij = dv_i/dx_j (E, G, 2, 2)
@@ -114,14 +110,15 @@ class _Fields:
 
 
 def element_residual(Xe, ve, pe, alpha, density: float, viscosity: float, symmetric: bool = False,
-                     force=None, jacobian: bool = True):
+                     force=None, jacobian: bool = True, kept=None):
     """Element residuals ``(E, 12)`` and Jacobians ``(E, 12, 12)`` (or None).
 
     Xe (E, 4, 2) corners [m]; ve (E, 4, 2) [m/s]; pe (E, 4) [Pa]; alpha (E,) [kg/(m^3 s)];
-    force (E, G, 2) body force at the Gauss points [N/m^3] or None.
+    force (E, G, 2) body force at the Gauss points [N/m^3] or None; kept: :func:`basis` of
+    ``Xe`` where the caller keeps it (None: formed here).
     """
     E = Xe.shape[0]
-    F = _Fields(Xe, ve, pe, alpha, density, viscosity, symmetric, force)
+    F = _Fields(Xe, ve, pe, alpha, density, viscosity, symmetric, force, kept)
     w = F.w
     Rv = np.matmul(N1.T, F.source * w[..., None])                                  # (E, 4, 2)
     Rv = Rv + (np.matmul(F.grad, np.swapaxes(F.T, -1, -2)) * w[..., None, None]).sum(axis=1)
@@ -182,11 +179,11 @@ def _jacobian(F, alpha, density, viscosity, symmetric):
 
 
 def alpha_partial(Xe, ve, pe, alpha, density: float, viscosity: float, symmetric: bool = False,
-                  force=None):
+                  force=None, kept=None):
     """``dR_e/dalpha_e`` ``(E, 12)``: the friction in the Galerkin and stabilization terms and
-    in ``tau`` (``dtau_p/dalpha = -tau_p^3 alpha``)."""
+    in ``tau`` (``dtau_p/dalpha = -tau_p^3 alpha``; ``kept``: as :func:`element_residual`)."""
     E = Xe.shape[0]
-    F = _Fields(Xe, ve, pe, alpha, density, viscosity, symmetric, force)
+    F = _Fields(Xe, ve, pe, alpha, density, viscosity, symmetric, force, kept)
     w = F.w
     test = (N1[None] + F.tau_s[:, None, None] * F.adv) * w[..., None]              # (E, G, 4)
     dv = np.matmul(test.transpose(0, 2, 1), F.v) + (density * F.dtau_dalpha)[:, None, None] * F.adv_r
