@@ -128,8 +128,8 @@ class CoupledModel:
         the full inflow, the inflow is ramped from rest (``coupled.load_ramp``, :mod:`tofsi.load_ramp`;
         one-way, the flow continues in its Reynolds number itself)."""
         t0 = time.perf_counter()
-        if self.flow is None:
-            raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow")
+        if self.flow is None and self.structure is None:
+            raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow and no structure")
         params = self.params if params is None else params
         c = self.scene.coupled
 

@@ -201,9 +201,11 @@ class StructureEntry(Field):
         return Memory(2 * grid.nodes, "q1-vector", 1.0e3)
 
     def build(self, model):
-        if model.flow is None:
+        st = model.scene.structure
+        if model.flow is None and not (st.density > 0 and any(st.gravity)):
             raise InputError("effects.structure", model.scene.effects.structure,
-                             "the structure is loaded by the flow; set effects.fluid too")
+                             "the structure is loaded by the flow or by its weight; set effects.fluid, "
+                             "or structure.density and structure.gravity")
         return Structure(model.mesh, model.scene.structure, model.flow, linear_algebra=model.linear_algebra)
 
     def block(self, model, two_way):

@@ -126,6 +126,11 @@ class StructureSettings:
                                   doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
                                       "et al.; the SIMP exponent keeps gray elements' displacement "
                                       "bounded)")
+    density: float = option(0.0, ge=0, doc="density of the solid rho_s [kg/m^3]: with structure.gravity its "
+                            "weight, a dead load on the solid phase weighted like the fluid load (rho^k)")
+    gravity: tuple[float, ...] = option((0.0, 0.0), length=2,
+                                        doc="gravitational acceleration [gx, gy] [m/s^2] acting on the solid "
+                                            "(e.g. [0, -9.81]); [0, 0]: no weight")
     model: str = option("linear", choices=("linear", "neo-hookean"),
                         doc="linear: small-strain elasticity; neo-hookean: compressible neo-Hookean at "
                             "finite strain (plane strain, total Lagrangian), solved by Newton with load "

@@ -225,8 +225,8 @@ class StructureLinearization(_EliminatedLinearization):
         return self.factorization().solve_transpose(b)
 
     def coupling(self, other):
-        st, w = self.st, self.fields["w"]
-        if other == "w":
+        st, w = self.st, self.fields.get("w")
+        if other == "w" and "w" in self.block.inputs:
             return self.kept("S_w", lambda: st.bc.free_rows(st.fluid_partial(w, self.X, self.rho, self.params)))
         if other == "x" and "x" in self.block.inputs:
             return self.kept("S_x", lambda: st.bc.free_rows(st.shape_partial(w, self.X, self.rho, self.params)))
@@ -234,12 +234,14 @@ class StructureLinearization(_EliminatedLinearization):
 
     def density(self):
         return self.kept("S_rho", lambda: self.st.bc.free_rows(
-            self.st.density_partial(self.value, self.fields["w"], self.X, self.rho, self.params)))
+            self.st.density_partial(self.value, self.fields.get("w"), self.X, self.rho, self.params)))
 
     def transpose_partials(self, lam):
         lam = self.block.homogenize(lam)
-        st, w = self.st, self.fields["w"]
-        bars = {"w": st.fluid_partial_transpose(lam, w, self.X, self.rho, self.params)}
+        st, w = self.st, self.fields.get("w")
+        bars = {}
+        if "w" in self.block.inputs:
+            bars["w"] = st.fluid_partial_transpose(lam, w, self.X, self.rho, self.params)
         if "x" in self.block.inputs:
             bars["x"] = self.coupling("x").T @ lam
         rho_bar = np.einsum("ea,ea->e", st.density_vectors(self.value, w, self.X, self.rho, self.params),
@@ -248,8 +250,9 @@ class StructureLinearization(_EliminatedLinearization):
 
 
 class StructureField(FieldBlock):
-    """The structure's displacement ``u``: SIMP plane-strain elasticity loaded by the flow
-    (at finite strain solved by Newton, whose report is the state's ``structure`` report)."""
+    """The structure's displacement ``u``: SIMP plane-strain elasticity loaded by the flow and
+    its weight, or by its weight alone (no flow: no input); at finite strain solved by Newton,
+    whose report is the state's ``structure`` report."""
 
     name, symbol, report_name = "u", "S", ""
 
@@ -257,7 +260,7 @@ class StructureField(FieldBlock):
         self.structure = structure
         self.report_name = "structure"          # a finite-strain solve's Newton report (small strain: none)
         self.size = structure.size
-        self.inputs = ("w", "x") if moving_mesh else ("w",)
+        self.inputs = (("w",) if structure.force is not None else ()) + (("x",) if moving_mesh else ())
         self.slow_couplings = ("x",) if moving_mesh else ()     # S_x: the load's shape derivative
 
     @property
@@ -269,7 +272,7 @@ class StructureField(FieldBlock):
 
     def residual(self, fields, rho, params):
         st, u = self.structure, fields["u"]
-        r = st.bc.homogenize(st.residual(u, fields["w"], _moved(fields, self.inputs), rho, params))
+        r = st.bc.homogenize(st.residual(u, fields.get("w"), _moved(fields, self.inputs), rho, params))
         r[self.fixed] = u[self.fixed]
         return r
 
@@ -279,7 +282,7 @@ class StructureField(FieldBlock):
     def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
         if self.structure.nonlinear(params):  # Newton from the guess (a nearby state), else load steps
             recycled = previous.solver if isinstance(previous, StructureLinearization) else None
-            solution = self.structure.newton_solve(fields["w"], _moved(fields, self.inputs), rho, params,
+            solution = self.structure.newton_solve(fields.get("w"), _moved(fields, self.inputs), rho, params,
                                                    guess=guess, solver=recycled)
             lin = StructureLinearization(self, {**fields, "u": solution.u}, rho, params, solver=solution.solver)
             return solution.u, lin, solution.report.as_dict()
@@ -289,12 +292,12 @@ class StructureField(FieldBlock):
             factor = previous.factorization()                     # K_s depends on (rho, p) only
         values = dict(fields)
         lin = StructureLinearization(self, values, rho, params, factor)
-        u = self.structure.solve(fields["w"], _moved(fields, self.inputs), rho, params, lin.factorization())
+        u = self.structure.solve(fields.get("w"), _moved(fields, self.inputs), rho, params, lin.factorization())
         lin.fields["u"] = u
         return u, lin, None
 
     def residual_scale(self, fields, rho, params, lin):
-        load = self.structure.load(fields["w"], _moved(fields, self.inputs), rho, params)
+        load = self.structure.load(fields.get("w"), _moved(fields, self.inputs), rho, params)
         return max(float(np.linalg.norm(load)), 1e-300)
 
     def ordering_grid(self):

@@ -8,7 +8,10 @@ strain, total Lagrangian, with the energy interpolation of nearly void
 elements; :mod:`tofsi.physics.finite_strain`). The load ``f`` is the
 fluid's force on the solid phase, :class:`~tofsi.physics.fluid_load.FluidForce`
 (``structure.load``: the momentum-consistent reaction by default), on the
-moved mesh ``X + x``, with the solid phase weighted by ``psi_e = rho_e^k``.
+moved mesh ``X + x``, with the solid phase weighted by ``psi_e = rho_e^k``,
+plus the solid's weight where ``structure.density`` and ``structure.gravity``
+give one (:class:`~tofsi.physics.gravity.DeadLoad`, a dead load weighted by the
+same ``psi``). Without a flow the weight is the only load.
 ``k = 1`` is Lundgaard et al.'s choice; since a gray element's displacement
 then grows like ``rho^(1 - p)`` as it empties, ``k = p`` keeps it bounded
 (robust two-way coupling).
@@ -38,6 +41,7 @@ from tofsi.linalg.backends import resolve
 from tofsi.mesh import DESIGN, SOLID
 from tofsi.physics.finite_strain import FiniteStrainElasticity, FiniteStrainSolution
 from tofsi.physics.fluid_load import FluidForce
+from tofsi.physics.gravity import DeadLoad
 
 AMG_TOL = 1e-10          # AMG-CG relative residual of the iterative path (the gradient's needs)
 
@@ -76,6 +80,8 @@ class Structure:
         self.mesh, self.settings, self.flow = mesh, settings, flow
         self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.force = None if flow is None else FluidForce(flow, settings.load)
+        self.weight = (DeadLoad(mesh, settings.density, settings.gravity)
+                       if settings.density > 0 and any(settings.gravity) else None)
         self.E0 = settings.youngs_modulus
         self.Emin = settings.e_min_ratio * settings.youngs_modulus
         self.defaults = Continuation(load_exponent=settings.load_exponent)
@@ -142,8 +148,26 @@ class Structure:
 
     # ---- fluid load --------------------------------------------------------------
     def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
-        """Fluid load ``f`` (2n,) [N/m] on the nodes."""
-        return self.force.load(w, x, rho, self._params(params))
+        """The load ``f`` (2n,) [N/m] on the nodes: the fluid's (``w`` the flow state, ``x`` the
+        fluid mesh's motion) and the solid's weight."""
+        f = np.zeros(self.size)
+        if self.force is not None:
+            f += self.force.load(w, x, rho, self._params(params))
+        if self.weight is not None:
+            f += self.weight.load(self._rho(rho), self._params(params))
+        return f
+
+    def load_density_vectors(self, w, x, rho, params=None) -> np.ndarray:
+        """``df_e/drho_e`` ``(E, 8)`` of the whole load (fluid and weight)."""
+        vals = np.zeros((self.mesh.n_elements, 8))
+        if self.force is not None:
+            vals += self.force.density_vectors(w, x, rho, self._params(params))
+        if self.weight is not None:
+            vals += self.weight.density_vectors(self._rho(rho), self._params(params))
+        return vals
+
+    def _rho(self, rho):
+        return np.zeros(self.mesh.n_elements) if rho is None else rho
 
     # ---- residual, solve and partials ----------------------------------------------
     def residual(self, u, w, x, rho, params=None) -> np.ndarray:
@@ -202,14 +226,14 @@ class Structure:
         return -self.force.shape_partial(w, x, rho, self._params(params))
 
     def density_vectors(self, u, w, x, rho, params=None) -> np.ndarray:
-        """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e`` (at finite strain
+        """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e`` (fluid load and weight; at finite strain
         ``dR_int,e/drho_e`` with the ``E'(rho)`` and ``g'(rho)`` terms)."""
         finite = self.finite(params)
         if finite is not None:
             Ku = finite.density_vectors(u, rho, self.simp(params))
         else:
             Ku = np.einsum("eab,eb->ea", self.K0, u[self.dofs]) * self.simp(params).derivative(rho)[:, None]
-        return Ku - self.force.density_vectors(w, x, rho, self._params(params))
+        return Ku - self.load_density_vectors(w, x, rho, params)
 
     def density_partial(self, u, w, x, rho, params=None) -> sp.csr_matrix:
         """``S_rho`` (2n x E)."""
