@@ -59,8 +59,9 @@ class Continuation:
     load : the fraction of the flow's prescribed boundary velocities (the inflow) the
         solve applies: 1 is the problem; below 1, a step of the load continuation that
         carries a coupled solve to large motion (:mod:`tofsi.load_ramp`)
-    structure_model : ``"linear"`` or ``"neo-hookean"`` for this stage (a design schedule:
-        small strain while the design is gray, finite strain once the topology exists);
+    structure_model : ``"linear"``, ``"neo-hookean"`` or ``"saint-venant-kirchhoff"`` for this
+        stage (a design schedule: small strain while the design is gray, finite strain once the
+        topology exists);
         ``""``: the structure's own ``structure.model``
     """
 

@@ -33,6 +33,7 @@ from tofsi.fields import fluid_force
 from tofsi.linalg import LinearAlgebra
 from tofsi.load_ramp import ramped
 from tofsi.mesh import DESIGN, SOLID
+from tofsi.probes import probe_figures
 from tofsi.registry import FIELDS
 
 __all__ = ["CoupledModel", "State", "continuation"]
@@ -166,8 +167,10 @@ class CoupledModel:
     # ---- figures --------------------------------------------------------------------------
     def figures(self, state: State) -> dict:
         """Every active field's figures of a state (flow: pressure drop, dissipation, drag and
-        lift; structure: compliance, largest displacement; moved mesh: its quality)."""
+        lift; structure: compliance, largest displacement; moved mesh: its quality) and the
+        scene's probes (:mod:`tofsi.probes`)."""
         out = {}
         for field in self.fields:
             out.update(field.figures(self, state))
+        out.update(probe_figures(self, state))
         return out

@@ -33,6 +33,7 @@ import numpy as np
 
 from tofsi import quality
 from tofsi.blocks import FieldBlock, State
+from tofsi.channel import named_solids
 from tofsi.errors import InputError
 from tofsi.mesh import DESIGN, SOLID
 from tofsi.physics.fields import FlowField, MotionField, StructureField
@@ -206,7 +207,8 @@ class StructureEntry(Field):
             raise InputError("effects.structure", model.scene.effects.structure,
                              "the structure is loaded by the flow or by its weight; set effects.fluid, "
                              "or structure.density and structure.gravity")
-        return Structure(model.mesh, model.scene.structure, model.flow, linear_algebra=model.linear_algebra)
+        return Structure(model.mesh, st, model.flow, linear_algebra=model.linear_algebra,
+                         solids=named_solids(model.scene.geometry, model.mesh))
 
     def block(self, model, two_way):
         return StructureField(model.structure, moving_mesh=two_way)

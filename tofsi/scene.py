@@ -21,6 +21,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from tofsi.errors import InputError
+from tofsi.mesh import SIDES
 from tofsi.registry import OBJECTIVES, SCENE_TABLES
 
 MIN_ELEMENTS_ACROSS = 4     # mesh.h_max is at most the channel's smaller side over this
@@ -144,6 +145,20 @@ def _check_across_tables(scene: Scene) -> None:
             if y0 < 0 or y1 > geometry.height:
                 raise InputError(f"fluid.{name}[{i}]", [y0, y1], f"extends outside the channel's "
                                  f"{side} side; need 0 <= y0 < y1 <= geometry.height = {geometry.height:g}")
+    names = set(geometry.solid_names) | set(geometry.circle_names)
+    for i, name in enumerate(scene.structure.clamped):
+        if name not in SIDES and name not in names:
+            raise InputError(f"structure.clamped[{i}]", name, "allowed: a channel side (" + ", ".join(SIDES)
+                             + ") or a named solid (" + (", ".join(sorted(names)) or "none named: "
+                             "geometry.solid_names, geometry.circle_names") + ")")
+    for name, (x, y) in scene.probes.points.items():
+        if not (0 <= x <= geometry.length and 0 <= y <= geometry.height):
+            raise InputError(f"probes.points.{name}", [x, y], f"outside the channel [0, {geometry.length:g}] x "
+                             f"[0, {geometry.height:g}]")
+    for i, name in enumerate(scene.probes.forces):
+        if name not in names:
+            raise InputError(f"probes.forces[{i}]", name, "allowed: a named solid (" + (
+                ", ".join(sorted(names)) or "none named: geometry.solid_names, geometry.circle_names") + ")")
     effects = scene.effects
     two_way = effects.coupling == "two-way" and effects.mesh_motion != "none"
     if "two-way" in scene.design.coupling and not two_way:

@@ -25,6 +25,7 @@ from typing import Any, Callable, Mapping
 import movers
 from tofsi.config import build, coerce, documentation, option
 from tofsi.errors import InputError
+from tofsi.mesh import SIDES
 from tofsi.registry import SCENE_TABLES
 from tofsi.settings import (MAX_STIFFENING, BandSettings, CoupledSettings, DesignSettings, FluidSettings,
                             OptimizerSettings, SolverSettings, StructureSettings, TuneSettings)
@@ -83,7 +84,7 @@ class SceneTable:
 # ---- geometry, mesh, deformation, effects, mover --------------------------------------------
 @dataclass(frozen=True)
 class Geometry:
-    """A channel ``[0, length] x [0, height]`` with solid, hole and design rectangles."""
+    """A channel ``[0, length] x [0, height]`` with solid, hole and design rectangles and solid circles."""
 
     length: float = option(2.0, gt=0, doc="channel length along x [m]")
     height: float = option(1.0, gt=0, doc="channel height along y [m]")
@@ -95,10 +96,34 @@ class Geometry:
                                                       "each must overlap a solid")
     design: tuple[float, ...] = option((), doc="design rectangle [x0, x1, y0, y1] [m]; "
                                                "empty: no design region")
+    circles: tuple[tuple[float, ...], ...] = option((), length=3,
+                                                    doc="circular solids [x, y, r] [m]: the elements whose "
+                                                        "centre lies inside (a staircase, symmetric about "
+                                                        "the centre: the mesh has grid lines through it and "
+                                                        "at x +- r, y +- r, and is graded towards the circle)")
+    solid_names: tuple[str, ...] = option((), doc="names of the solid rectangles, one per entry of "
+                                                  "geometry.solids (or none), for structure.clamped and "
+                                                  "probes.forces")
+    circle_names: tuple[str, ...] = option((), doc="names of the circles, one per entry of geometry.circles "
+                                                   "(or none)")
 
     def __post_init__(self):
         if self.design and len(self.design) != 4:
             raise InputError("design", self.design, "expected [] or [x0, x1, y0, y1]")
+        for i, (x, y, r) in enumerate(self.circles):
+            if not (r > 0 and 0 <= x - r and x + r <= self.length and 0 <= y - r and y + r <= self.height):
+                raise InputError(f"circles[{i}]", [x, y, r], f"need r > 0 and the circle inside the channel "
+                                 f"(0 <= x - r, x + r <= {self.length}, 0 <= y - r, y + r <= {self.height})")
+        for key, names, shapes in (("solid_names", self.solid_names, "solids"),
+                                   ("circle_names", self.circle_names, "circles")):
+            if names and len(names) != len(getattr(self, shapes)):
+                raise InputError(key, list(names), f"give one name per entry of geometry.{shapes} "
+                                 f"({len(getattr(self, shapes))}), or none")
+        named = list(self.solid_names) + list(self.circle_names)
+        for name in named:
+            if not name or name in SIDES or named.count(name) > 1:
+                raise InputError("solid_names" if name in self.solid_names else "circle_names", name,
+                                 "a name must be non-empty, unique and not a channel side (" + ", ".join(SIDES) + ")")
         named = [("solids", i, r) for i, r in enumerate(self.solids)]
         named += [("holes", i, r) for i, r in enumerate(self.holes)]
         if self.design:
@@ -174,6 +199,46 @@ class Effects:
         if self.mesh_motion != "none" and self.mesh_motion not in names:
             raise InputError("mesh_motion", self.mesh_motion,
                              "allowed: 'none' or one of " + ", ".join(map(repr, names)))
+
+
+@dataclass(frozen=True)
+class Probes:
+    """What a solve reports besides its fields' figures (table ``[probes]``): the structure's
+    displacement at named points and the fluid's force on named solids."""
+
+    points: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    forces: tuple[str, ...] = ()
+
+
+def _build_probes(raw, raw_scene) -> Probes:
+    if not isinstance(raw, dict):
+        raise InputError("probes", raw, "expected a table")
+    for key in raw:
+        if key not in ("points", "forces"):
+            raise InputError(f"probes.{key}", raw[key], "unknown key; allowed keys: forces, points")
+    points = raw.get("points", {})
+    if not isinstance(points, dict):
+        raise InputError("probes.points", points, "expected a table of name = [x, y], e.g. { A = [0.6, 0.2] }")
+    checked = {}
+    for name, xy in points.items():
+        if not name.isidentifier():
+            raise InputError(f"probes.points.{name}", xy, "a point's name is a word of letters, digits and _")
+        checked[name] = coerce(tuple[float, ...], xy, f"probes.points.{name}", dict(length=2))
+    forces = coerce(tuple[str, ...], raw.get("forces", []), "probes.forces", {})
+    return Probes(points=MappingProxyType(checked), forces=forces)
+
+
+def _write_probes(probes: Probes) -> dict:
+    return {"points": {name: list(xy) for name, xy in probes.points.items()}, "forces": list(probes.forces)}
+
+
+def _probes_rows() -> list:
+    return [("probes.points", {}, "a table of name = [x, y]",
+             "points [m] where solve reports the structure's displacement, as figures ux_<name> and "
+             "uy_<name> [m] (bilinear on the element holding the point)"),
+            ("probes.forces", (), "list of named solids",
+             "named solids (geometry.solid_names, geometry.circle_names) whose drag and lift solve "
+             "reports, as figures drag_<name> and lift_<name> [N/m]: the fluid load on their elements")]
 
 
 LAYERS_FROM = ("density", "solid")
@@ -268,5 +333,6 @@ for _table in (SceneTable("geometry", Geometry), SceneTable("mesh", MeshSettings
                SceneTable("design", DesignSettings),
                SceneTable("optimizer", OptimizerSettings, resumable=("max_iter", "output_every")),
                SceneTable("coupled", CoupledSettings), SceneTable("tune", TuneSettings),
+               SceneTable("probes", Probes, builder=_build_probes, writer=_write_probes, reference=_probes_rows),
                SceneTable("solver", SolverSettings, resumable=("max_memory_gb",))):
     SCENE_TABLES.register(_table)

@@ -113,8 +113,10 @@ class StructureSettings:
     youngs_modulus: float = option(1e5, gt=0, doc="Young's modulus of solid E0 [Pa]")
     poisson_ratio: float = option(0.3, gt=-1.0, lt=0.5, doc="Poisson's ratio")
     e_min_ratio: float = option(1e-9, gt=0, lt=1, doc="Emin / E0 of void (fluid) elements")
-    clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
-                                      doc="channel sides where the structure is clamped (at least one)")
+    clamped: tuple[str, ...] = option(("bottom",), doc="where the structure is clamped (at least one): channel "
+                                                       "sides (left, right, bottom, top) and named solids "
+                                                       "(geometry.solid_names, geometry.circle_names), whose "
+                                                       "every node is held")
     load: str = option("reaction", choices=("reaction", "stress-divergence", "pressure"),
                        doc="the fluid's force on the solid: reaction, the momentum-consistent "
                            "reaction of the fluid residual (its resultant tends to the no-slip "
@@ -131,23 +133,25 @@ class StructureSettings:
     gravity: tuple[float, ...] = option((0.0, 0.0), length=2,
                                         doc="gravitational acceleration [gx, gy] [m/s^2] acting on the solid "
                                             "(e.g. [0, -9.81]); [0, 0]: no weight")
-    model: str = option("linear", choices=("linear", "neo-hookean"),
+    model: str = option("linear", choices=("linear", "neo-hookean", "saint-venant-kirchhoff"),
                         doc="linear: small-strain elasticity; neo-hookean: compressible neo-Hookean at "
                             "finite strain (plane strain, total Lagrangian), solved by Newton with load "
-                            "steps; the fluid load acts on the moved configuration")
+                            "steps; saint-venant-kirchhoff: the same with W = lam/2 (tr E)^2 + mu E:E in "
+                            "the Green-Lagrange strain E (Turek & Hron's solid); at finite strain the "
+                            "fluid load acts on the moved configuration")
     interpolation: str = option("energy", choices=("energy", "simp"),
-                                doc="neo-hookean: nearly void elements -- energy: Wang et al. 2014's "
+                                doc="finite strain: nearly void elements -- energy: Wang et al. 2014's "
                                     "blend of the nonlinear and the linear strain energy by density "
                                     "(void elements linear, so they cannot invert or stall Newton); "
                                     "simp: every element neo-Hookean")
     energy_threshold: float = option(0.01, gt=0, lt=1,
-                                     doc="neo-hookean, energy: density rho0 where the blend g(rho) turns "
+                                     doc="finite strain, energy: density rho0 where the blend g(rho) turns "
                                          "from linear (below) to nonlinear (above)")
-    energy_sharpness: float = option(500.0, gt=0, le=1e4, doc="neo-hookean, energy: steepness beta of g(rho)")
-    newton_tol: float = option(1e-10, gt=0, lt=1, doc="neo-hookean: Newton tolerance, the norm of S on "
+    energy_sharpness: float = option(500.0, gt=0, le=1e4, doc="finite strain, energy: steepness beta of g(rho)")
+    newton_tol: float = option(1e-10, gt=0, lt=1, doc="finite strain: Newton tolerance, the norm of S on "
                                                       "the free dofs relative to the load's")
-    max_newton: int = option(25, ge=1, le=1000, doc="neo-hookean: Newton iterations per load step")
-    max_cutbacks: int = option(20, ge=0, le=1000, doc="neo-hookean: halvings of the load step before failing")
+    max_newton: int = option(25, ge=1, le=1000, doc="finite strain: Newton iterations per load step")
+    max_cutbacks: int = option(20, ge=0, le=1000, doc="finite strain: halvings of the load step before failing")
 
     def __post_init__(self):
         if not self.clamped:
@@ -226,7 +230,7 @@ class DesignSettings:
     skewness_ks: float = option(100.0, gt=0, le=1e4,
                                 doc="KS parameter p of the mesh-quality constraint's soft minimum (within "
                                     "log(4 E)/p below the worst corner)")
-    structure_model: tuple[str, ...] = option((), choices=("linear", "neo-hookean"),
+    structure_model: tuple[str, ...] = option((), choices=("linear", "neo-hookean", "saint-venant-kirchhoff"),
                                               doc="structure model of each stage (last value kept): "
                                                   "small strain while the design is gray (a gray start is "
                                                   "no physical state either way, and finite strain crushes "

@@ -81,8 +81,10 @@ class HyperelasticKernel:
     Xe : reference corners ``(E, 4, 2)`` [m]; poisson_ratio : ``nu`` (the Lame
     parameters are per unit Young's modulus; moduli are per-element inputs);
     K0 : the small-strain stiffness per unit modulus ``(E, 8, 8)`` if already made.
-    Subclasses write :meth:`nonlinear` and :meth:`nonlinear_energy`.
+    Subclasses write :meth:`nonlinear` and :meth:`nonlinear_energy` and name their ``material``.
     """
+
+    material = ""
 
     def __init__(self, Xe: np.ndarray, poisson_ratio: float, K0: np.ndarray | None = None):
         points, weights = gauss_square(2)

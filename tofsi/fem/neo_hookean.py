@@ -41,6 +41,8 @@ class NeoHookeanKernel(HyperelasticKernel):
     K0 : the small-strain stiffness per unit modulus ``(E, 8, 8)`` if already made.
     """
 
+    material = "neo-Hookean"
+
     def __init__(self, Xe: np.ndarray, poisson_ratio: float, K0: np.ndarray | None = None):
         super().__init__(Xe, poisson_ratio, K0)
         dN, inv, grad, G = self.shape_gradients, self.inverse_jacobians, self.grad, self.n_points

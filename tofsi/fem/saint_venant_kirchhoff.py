@@ -38,6 +38,8 @@ class SaintVenantKirchhoffKernel(HyperelasticKernel):
     """Saint Venant-Kirchhoff internal forces, tangents and energies of a fixed reference mesh of
     Q1 quads (see the module docstring; constructor as :class:`HyperelasticKernel`)."""
 
+    material = "Saint Venant-Kirchhoff"
+
     def _strains(self, ue: np.ndarray):
         """``F`` ``(E, G, 2, 2)``, ``det F`` and the Green-Lagrange strain ``E`` ``(E, G, 2, 2)``."""
         F = self.deformation_gradient(ue)

@@ -2,10 +2,10 @@
 
 Plane-strain elasticity on Q1, over the whole channel (unified domain):
 element moduli by SIMP, ``E_e = Emin + rho_e^p (E0 - Emin)``, on the
-reference mesh; clamped on the scene's channel sides. ``structure.model``:
-``linear`` (small strain, ``R_int = K_s(rho) u``) or ``neo-hookean`` (finite
-strain, total Lagrangian, with the energy interpolation of nearly void
-elements; :mod:`tofsi.physics.finite_strain`). The load ``f`` is the
+reference mesh; clamped on the scene's channel sides and named solids. ``structure.model``:
+``linear`` (small strain, ``R_int = K_s(rho) u``), ``neo-hookean`` or
+``saint-venant-kirchhoff`` (finite strain, total Lagrangian, with the energy
+interpolation of nearly void elements; :mod:`tofsi.physics.finite_strain`). The load ``f`` is the
 fluid's force on the solid phase, :class:`~tofsi.physics.fluid_load.FluidForce`
 (``structure.load``: the momentum-consistent reaction by default), on the
 moved mesh ``X + x``, with the solid phase weighted by ``psi_e = rho_e^k``,
@@ -35,15 +35,36 @@ from tofsi.errors import InputError, NumericalError
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import element_stiffness, lame
+from tofsi.fem.neo_hookean import NeoHookeanKernel
+from tofsi.fem.saint_venant_kirchhoff import SaintVenantKirchhoffKernel
 from tofsi.interpolation import SIMP
 from tofsi.linalg import AMGSolver, DirectSolver, LinearAlgebra, nested_dissection, rigid_body_modes
 from tofsi.linalg.backends import resolve
-from tofsi.mesh import DESIGN, SOLID
+from tofsi.mesh import DESIGN, SIDES, SOLID
 from tofsi.physics.finite_strain import FiniteStrainElasticity, FiniteStrainSolution
 from tofsi.physics.fluid_load import FluidForce
 from tofsi.physics.gravity import DeadLoad
 
 AMG_TOL = 1e-10          # AMG-CG relative residual of the iterative path (the gradient's needs)
+FINITE_STRAIN = {"neo-hookean": NeoHookeanKernel, "saint-venant-kirchhoff": SaintVenantKirchhoffKernel}
+"""The finite-strain models (``structure.model``) and their element kernels."""
+
+
+def held_nodes(mesh, clamped, solids=None) -> np.ndarray:
+    """The nodes ``structure.clamped`` holds: those of the channel sides it names and of the
+    elements of the named solids (``solids``: name -> elements, :func:`tofsi.channel.named_solids`)."""
+    solids = solids or {}
+    nodes = []
+    for name in clamped:
+        if name in SIDES:
+            nodes.append(mesh.side_nodes(name))
+        elif name in solids:
+            nodes.append(np.unique(mesh.quads[solids[name]]))
+        else:
+            raise InputError("structure.clamped", name, "neither a channel side (" + ", ".join(SIDES) + ") nor a "
+                             "named solid (" + (", ".join(solids) or "geometry.solid_names, geometry.circle_names")
+                             + ")")
+    return np.unique(np.concatenate(nodes))
 
 
 def check_held(mesh, clamped_nodes: np.ndarray, sides) -> None:
@@ -64,8 +85,8 @@ def check_held(mesh, clamped_nodes: np.ndarray, sides) -> None:
         centre = mesh.centroids[solid[label == floating[0]]].mean(axis=0)
         raise InputError("structure.clamped", list(sides),
                          f"the solid region around ({centre[0]:.3g}, {centre[1]:.3g}) m touches none of "
-                         "these channel sides, so nothing holds it; clamp a side it touches (or set "
-                         "effects.structure = \"none\")")
+                         "these channel sides or solids, so nothing holds it; clamp a side or a named "
+                         "solid it touches (or set effects.structure = \"none\")")
 
 
 class Structure:
@@ -73,10 +94,11 @@ class Structure:
 
     ``params`` arguments default to the settings' load exponent and the
     default SIMP exponent (:class:`~tofsi.blocks.Continuation`); ``linear_algebra`` is the
-    model's backend (default: superlu, or the process default).
+    model's backend (default: superlu, or the process default); ``solids`` the named solids'
+    elements (name -> element indices) that ``structure.clamped`` may name.
     """
 
-    def __init__(self, mesh, settings, flow=None, linear_algebra: LinearAlgebra | None = None):
+    def __init__(self, mesh, settings, flow=None, linear_algebra: LinearAlgebra | None = None, solids=None):
         self.mesh, self.settings, self.flow = mesh, settings, flow
         self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.force = None if flow is None else FluidForce(flow, settings.load)
@@ -87,15 +109,15 @@ class Structure:
         self.defaults = Continuation(load_exponent=settings.load_exponent)
         self.dofs = element_dofs(mesh.quads, 2)
         self.size = 2 * mesh.n_nodes
-        clamped = np.unique(np.concatenate([mesh.side_nodes(s) for s in settings.clamped]))
+        clamped = held_nodes(mesh, settings.clamped, solids)
         if clamped.size == 0:
-            raise InputError("structure.clamped", list(settings.clamped), "no side to clamp")
+            raise InputError("structure.clamped", list(settings.clamped), "no side or solid to clamp")
         check_held(mesh, clamped, settings.clamped)
         self.bc = DirichletOperator(self.dofs, self.dofs, self.size, element_dofs(clamped[:, None], 2).ravel())
         self.K0 = element_stiffness(mesh.points[mesh.quads], *lame(1.0, settings.poisson_ratio))
         self.grid = np.repeat(mesh.grid_positions(), 2, axis=0)      # (2n, 2) fine-grid positions
         self.perm = nested_dissection(self.grid)
-        self._finite_strain = None     # its precomputed operators, built when a stage first asks
+        self._finite_strain = {}       # per material: its precomputed operators, built when a stage first asks
 
     def model(self, params=None) -> str:
         """The structure model of a solve: the continuation record's stage model (a design schedule,
@@ -103,17 +125,19 @@ class Structure:
         return self._params(params).structure_model or self.settings.model
 
     def finite(self, params=None) -> FiniteStrainElasticity | None:
-        """The finite-strain elasticity when the solve's model is neo-Hookean, else None."""
-        if self.model(params) != "neo-hookean":
+        """The finite-strain elasticity of the solve's model (neo-Hookean, Saint Venant-Kirchhoff),
+        or None at small strain."""
+        model = self.model(params)
+        if model not in FINITE_STRAIN:
             return None
-        if self._finite_strain is None:
-            self._finite_strain = FiniteStrainElasticity(self.mesh, self.settings, self.bc, self.dofs,
-                                                         self.direct, self.K0)
-        return self._finite_strain
+        if model not in self._finite_strain:
+            self._finite_strain[model] = FiniteStrainElasticity(self.mesh, self.settings, self.bc, self.dofs,
+                                                                self.direct, self.K0, FINITE_STRAIN[model])
+        return self._finite_strain[model]
 
     def nonlinear(self, params=None) -> bool:
         """True at finite strain: ``S`` is nonlinear in ``u`` (its tangent depends on ``u``)."""
-        return self.model(params) == "neo-hookean"
+        return self.model(params) in FINITE_STRAIN
 
     def direct(self, A) -> DirectSolver:
         """A direct solver of a stiffness or tangent ``A`` (the model's backend, nested dissection)."""
