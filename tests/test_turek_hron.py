@@ -189,3 +189,36 @@ def test_saint_venant_kirchhoff_blocks_and_gradient_pass_the_taylor_test(case):
     assert all(r["passed"] for r in rows), [r for r in rows if not r["passed"]]
     t, err, _ = check_total_derivative(P, gamma, direction)
     assert t.min_rate > 1.9 and err < 1e-5, (t, err)
+
+
+# ---- slow: the benchmark's finest meshes (benchmarks/turek_hron.py, docs/benchmarks_fsi.md) -------------
+def benchmark(case, level):
+    from benchmarks.turek_hron import CASES as BENCH, run_one
+    record = run_one(case, level)
+    return {k: v / BENCH[case].reference[k] - 1 for k, v in record["values"].items()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["csm1", "csm2"])
+def test_csm_at_the_finest_mesh_meets_the_targets(case):
+    """h_min = 0.625 mm (32 elements through the flag): u_y(A) within 1 %, u_x(A) within 3 %."""
+    errors = benchmark(case, 3)
+    assert abs(errors["uy_A"]) < 0.01 and abs(errors["ux_A"]) < 0.03, errors
+
+
+@pytest.mark.slow
+def test_fsi1_converges_and_meets_the_targets_at_the_finest_mesh():
+    """h_min = 5, 2.5 and 1.25 mm: the drag's error falls at every refinement; at the finest the
+    drag within 1 %, the lift within 5 %, u_y(A) within 3 % of Turek & Hron's."""
+    errors = [benchmark("fsi1", level) for level in (0, 1, 2)]
+    drag = [abs(e["drag"]) for e in errors]
+    assert drag[0] > drag[1] > drag[2], errors
+    e = errors[-1]
+    assert abs(e["drag"]) < 0.01 and abs(e["lift"]) < 0.05 and abs(e["uy_A"]) < 0.03, e
+
+
+@pytest.mark.slow
+def test_the_dfg_drag_at_the_finest_mesh():
+    """160 elements across the cylinder (h_min = 0.625 mm): c_D within 0.5 % of 5.5795."""
+    errors = benchmark("dfg", 3)
+    assert 0 < errors["c_D"] < 0.005, errors
