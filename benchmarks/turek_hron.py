@@ -100,9 +100,9 @@ def area_fraction(model, rho):
 
 def off_centre_mesh(scene):
     """The scene's mesh without the circles' grid lines (the staircase no longer symmetric)."""
-    from tofsi.channel import in_circle, inside
-    from tofsi.grading import graded_axis
-    from tofsi.mesh import FLUID, SOLID, StructuredQuadMesh
+    from tofsi.mesh.channel import in_circle, inside
+    from tofsi.mesh.grading import graded_axis
+    from tofsi.mesh.structured import FLUID, SOLID, StructuredQuadMesh
     g, m = scene.geometry, scene.mesh
     boxes = [[x - r, x + r, y - r, y + r] for x, y, r in g.circles]
     features = list(g.solids) + boxes
@@ -158,7 +158,7 @@ def h_min(level: int) -> float:
 def run_one(case: str, level: int, variant: Variant | None = None) -> dict:
     """Solve one case at one level (in this process) and return its record."""
     import tofsi
-    from tofsi.coupled import CoupledModel
+    from tofsi.coupling.coupled import CoupledModel
     c = CASES[case]
     overrides = [f"mesh.h_min={h_min(level)}", *c.overrides, *(variant.overrides if variant else ())]
     scene = tofsi.load_scene(SCENES / f"{c.scene}.toml", overrides)
@@ -295,9 +295,9 @@ def pictures(output: Path, folder: Path, fsi_level: int, csm_level: int) -> None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import tofsi
-    from tofsi.channel import named_solids
-    from tofsi.coupled import CoupledModel
-    from tofsi.plotting import element_boundary
+    from tofsi.mesh.channel import named_solids
+    from tofsi.coupling.coupled import CoupledModel
+    from tofsi.runs.plotting import element_boundary
     folder.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(2, 1, figsize=(9, 6.2), layout="constrained")
     for ax, case, level in ((axes[0], "fsi1", fsi_level), (axes[1], "csm1", csm_level)):

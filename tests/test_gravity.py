@@ -16,9 +16,10 @@ import tofsi
 from adjoint.checks import check_blocks
 from conftest import load, scene_path
 from gradient_checks import check_total_derivative
-from tofsi.coupled import CoupledModel
+from tofsi.coupling.coupled import CoupledModel
 from tofsi.physics.gravity import DeadLoad
-from tofsi.scene import scene_from_dict
+from tofsi.core.blocks import Continuation
+from tofsi.scene.scene import scene_from_dict
 
 RHO_S, G = 1000.0, (0.0, -9.81)
 
@@ -41,7 +42,7 @@ def test_the_weight_is_the_solids_weight():
     assert f[:, 1].sum() == pytest.approx(fy, rel=1e-13)
     gray = np.full(model.mesh.n_elements, 0.5)                  # weighted like the fluid load: rho^k
     load = DeadLoad(model.mesh, RHO_S, G)
-    assert load.resultant(gray, tofsi.blocks.Continuation(load_exponent=3.0))[1] == pytest.approx(
+    assert load.resultant(gray, Continuation(load_exponent=3.0))[1] == pytest.approx(
         0.125 * RHO_S * G[1] * 1.2 * 0.5, rel=1e-13)
 
 

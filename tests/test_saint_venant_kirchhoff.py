@@ -22,8 +22,8 @@ from tofsi.fem.assembly import element_dofs
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.fem.hyperelastic import NonlinearWeight
 from tofsi.fem.saint_venant_kirchhoff import SaintVenantKirchhoffKernel
-from tofsi.interpolation import SIMP
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.physics.interpolation import SIMP
+from tofsi.mesh.structured import StructuredQuadMesh
 
 NU = 0.4             # Turek & Hron's solid
 

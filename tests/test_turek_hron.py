@@ -24,11 +24,12 @@ from adjoint.checks import check_blocks
 from conftest import load, scene_path
 from gradient_checks import check_total_derivative
 from no_slip import NoSlipReference
-from tofsi.channel import build_mesh, named_solids
-from tofsi.coupled import CoupledModel
-from tofsi.mesh import SOLID
+from tofsi.core.errors import InputError
+from tofsi.mesh.channel import build_mesh, inside, named_solids
+from tofsi.coupling.coupled import CoupledModel
+from tofsi.mesh.structured import SOLID
 from tofsi.physics.structure import held_nodes
-from tofsi.probes import interpolate
+from tofsi.coupling.probes import interpolate
 
 FLAG_ROOT = 0.2 + np.sqrt(0.05 ** 2 - 0.01 ** 2)
 DFG_DRAG, DFG_LIFT = 5.57953523384, 0.010618948146      # c = 2 F / (rho U^2 D) = 500 F
@@ -63,7 +64,7 @@ def test_the_flag_is_clamped_on_the_straight_edge_at_the_cylinder():
     solids = named_solids(scene.geometry, mesh)
     flag, cyl = solids["flag"], solids["cylinder"]
     assert np.intersect1d(flag, cyl).size == 0
-    flag_box = tofsi.channel.inside(mesh.centroids, scene.geometry.solids[0])
+    flag_box = inside(mesh.centroids, scene.geometry.solids[0])
     np.testing.assert_array_equal(np.flatnonzero(flag_box), flag)          # the flag owns what they share
     held = held_nodes(mesh, ["cylinder"], solids)
     flag_nodes = np.unique(mesh.quads[flag])
@@ -71,7 +72,7 @@ def test_the_flag_is_clamped_on_the_straight_edge_at_the_cylinder():
     root = flag_nodes[np.isclose(P[:, 0], FLAG_ROOT)]
     assert root.size == round(0.02 / 0.005) + 1
     np.testing.assert_array_equal(np.intersect1d(held, flag_nodes), root)   # the straight clamp, nothing more
-    with pytest.raises(tofsi.errors.InputError, match="structure.clamped"):
+    with pytest.raises(InputError, match="structure.clamped"):
         held_nodes(mesh, ["flagpole"], solids)
 
 
@@ -81,7 +82,8 @@ def test_the_flag_is_clamped_on_the_straight_edge_at_the_cylinder():
     ('geometry.circles=[[0.02, 0.2, 0.05]]', "geometry.circles[0]"),
     ('geometry.circle_names=["left"]', "geometry.circle_names"),
     ('probes.forces=["wing"]', "probes.forces[0]"),
-    ('probes.points.A=[2.6, 0.2]', "probes.points.A"),
+    ('probes.points=[[2.6, 0.2]]', "probes.points[0]"),
+    ('probes.point_names=["A", "B"]', "probes.point_names"),
 ])
 def test_bad_benchmark_input_is_refused_by_its_key(cli, tmp_path, override, key):
     run = cli("solve", str(scene_path("turek_hron_fsi1")), "--set", override, "--output", str(tmp_path))

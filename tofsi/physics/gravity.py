@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofsi.blocks import Continuation
+from tofsi.core.blocks import Continuation
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.geometry import jacobians
 from tofsi.fem.quadrature import gauss_square
