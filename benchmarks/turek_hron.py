@@ -316,8 +316,8 @@ def pictures(output: Path, folder: Path, fsi_level: int, csm_level: int) -> None
             fig.colorbar(tpc, ax=ax, label="|v| [m/s]")
             scale = 50.0
             edges = element_boundary(mesh.quads, np.isin(np.arange(mesh.n_elements), solids["flag"]))
-            for k, (pts, style, label) in enumerate(((mesh.points, "w:", "flag at rest"),
-                                                     (mesh.points + scale * U, "r-", f"flag deformed (x{scale:g})"))):
+            for pts, style, label in ((mesh.points, "w:", "flag at rest"),
+                                      (mesh.points + scale * U, "r-", f"flag deformed (x{scale:g})")):
                 for e in edges:
                     ax.plot(pts[e, 0], pts[e, 1], style, lw=1.0, label=label if e is edges[0] else None)
             cyl = element_boundary(mesh.quads, np.isin(np.arange(mesh.n_elements), solids["cylinder"]))

@@ -97,7 +97,7 @@ def test_a_probe_is_exact_for_bilinear_fields_and_reads_nodes():
     P = mesh.points
     field = np.column_stack([1 + 2 * P[:, 0] - P[:, 1] + 3 * P[:, 0] * P[:, 1], P[:, 0] * P[:, 1] - 0.5])
     rng = np.random.default_rng(0)
-    for x, y in zip(rng.uniform(0, 2.5, 20), rng.uniform(0, 0.41, 20)):
+    for x, y in zip(rng.uniform(0, 2.5, 20), rng.uniform(0, 0.41, 20), strict=True):
         np.testing.assert_allclose(interpolate(mesh, field, (x, y)), [1 + 2 * x - y + 3 * x * y, x * y - 0.5],
                                    rtol=1e-12)
     A = np.flatnonzero(np.isclose(P[:, 0], 0.6) & np.isclose(P[:, 1], 0.2))

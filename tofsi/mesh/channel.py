@@ -76,8 +76,10 @@ def named_solids(geometry, mesh) -> dict[str, np.ndarray]:
     unless a hole takes it (so a rectangle attached to a circle owns the elements they share)."""
     c = mesh.centroids
     owner = np.full(mesh.n_elements, -1)
-    shapes = ([(name, in_circle(c, circle)) for name, circle in zip(geometry.circle_names, geometry.circles)]
-              + [(name, inside(c, rect)) for name, rect in zip(geometry.solid_names, geometry.solids)])
+    # names: none (unnamed shapes) or one per shape
+    shapes = ([(name, in_circle(c, circle))
+               for name, circle in zip(geometry.circle_names, geometry.circles, strict=False)]
+              + [(name, inside(c, rect)) for name, rect in zip(geometry.solid_names, geometry.solids, strict=False)])
     for k, (_, members) in enumerate(shapes):
         owner[members] = k
     for rect in geometry.holes:

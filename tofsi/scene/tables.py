@@ -230,7 +230,7 @@ class Probes:
     @property
     def named_points(self) -> dict[str, tuple[float, float]]:
         """The points by name."""
-        return dict(zip(self.point_names, self.points))
+        return dict(zip(self.point_names, self.points, strict=True))
 
 
 def _check_probes(scene) -> None:
