@@ -318,23 +318,23 @@ def pictures(output: Path, folder: Path, fsi_level: int, csm_level: int) -> None
             edges = element_boundary(mesh.quads, np.isin(np.arange(mesh.n_elements), solids["flag"]))
             for pts, style, label in ((mesh.points, "w:", "flag at rest"),
                                       (mesh.points + scale * U, "r-", f"flag deformed (x{scale:g})")):
-                for e in edges:
-                    ax.plot(pts[e, 0], pts[e, 1], style, lw=1.0, label=label if e is edges[0] else None)
+                for i, e in enumerate(edges):
+                    ax.plot(pts[e, 0], pts[e, 1], style, lw=1.0, label=label if i == 0 else None)
             cyl = element_boundary(mesh.quads, np.isin(np.arange(mesh.n_elements), solids["cylinder"]))
-            for e in cyl:
-                ax.plot(X[e, 0], X[e, 1], "k-", lw=0.8)
+            for i, e in enumerate(cyl):
+                ax.plot(X[e, 0], X[e, 1], "k-", lw=0.8, label="cylinder (staircase)" if i == 0 else None)
             f = model.figures(state)
             ax.set_title(f"FSI1 (h_min {1e3 * h_min(level):g} mm): drag {f['drag']:.3f} N/m, lift {f['lift']:.4f} N/m, "
                          f"u_y(A) {1e3 * f['uy_A']:.4f} mm", fontsize=9)
             ax.set_xlim(0.1, 0.9)
             ax.set_ylim(0.0, 0.41)
-            ax.legend(loc="lower right", fontsize=7)
+            ax.legend(loc="lower right", fontsize=7, facecolor="0.55", framealpha=0.9)
         else:
             edges = element_boundary(mesh.quads, np.isin(np.arange(mesh.n_elements), solids["flag"]))
             for pts, style, label in ((mesh.points, "k:", "flag at rest"), (mesh.points + U, "b-", "flag deformed (true scale)")):
-                for e in edges:
-                    ax.plot(pts[e, 0], pts[e, 1], style, lw=1.0, label=label if e is edges[0] else None)
-            circle = plt.Circle((0.2, 0.2), 0.05, color="0.6")
+                for i, e in enumerate(edges):
+                    ax.plot(pts[e, 0], pts[e, 1], style, lw=1.0, label=label if i == 0 else None)
+            circle = plt.Circle((0.2, 0.2), 0.05, color="0.6", label="cylinder")
             ax.add_patch(circle)
             f = model.figures(state)
             ax.plot([0.6 + f["ux_A"]], [0.2 + f["uy_A"]], "ro", ms=4, label="A")
