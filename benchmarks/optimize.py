@@ -107,23 +107,39 @@ def main() -> None:
     floor = FloorCounter() if args.floor else None
     if floor:
         floor.install(args.backend)
-    times = {"forward": [], "adjoint": []}
+    times = {"forward": [], "adjoint": [], "forward_cpu": [], "adjoint_cpu": []}
+    krylov = {"newton": [], "transposed": []}             # (CPU s, iterations) of each flow GMRES
 
     def timed(fn, key):
         def wrapper(*a, **k):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             out = fn(*a, **k)
             times[key].append(time.perf_counter() - t0)
+            times[key + "_cpu"].append(time.process_time() - c0)
             return out
         return wrapper
+
+    def counted(fn, key):
+        def wrapper(*a, **k):
+            c0 = time.process_time()
+            x, its = fn(*a, **k)
+            krylov[key].append((time.process_time() - c0, its))
+            return x, its
+        return wrapper
+    if args.backend == "iterative":               # the Newton steps' GMRES and the adjoint's transposed one
+        import tofsi.linalg.iterative as iterative_module
+        import tofsi.linalg.recycling as recycling_module
+        recycling_module.gmres = counted(recycling_module.gmres, "newton")
+        iterative_module.gmres = counted(iterative_module.gmres, "transposed")
 
     import adjoint.solve
     problem.model.solve = timed(problem.model.solve, "forward")
     adjoint.solve.Adjoint.gradient = timed(adjoint.solve.Adjoint.gradient, "adjoint")
-    stamps = []
+    stamps, cpu_stamps = [], []
     with tempfile.TemporaryDirectory() as tmp:
         def on_iteration(it):
             stamps.append(time.perf_counter())
+            cpu_stamps.append((time.process_time(), {k: len(v) for k, v in krylov.items()}))
             if floor:
                 floor.mark()
         optimizer = Optimizer(problem, tmp, on_iteration=on_iteration)
@@ -145,6 +161,21 @@ def main() -> None:
            "backend": args.backend, "blas_threads": args.blas_threads,
            "machine": f"{platform.machine()}, Python {platform.python_version()}"}
     row["mma_and_rest_s"] = row["seconds_per_iteration"] - row["forward_s"] - row["adjoint_s"]
+    cpu = [b[0] - a[0] for a, b in zip(cpu_stamps[:-1], cpu_stamps[1:])]
+    row["cpu_seconds_per_iteration"] = mean(cpu[1:])
+    row["forward_cpu_s"] = mean(times["forward_cpu"][2:2 + n])
+    row["adjoint_cpu_s"] = mean([a + b for a, b in zip(times["adjoint_cpu"][2::2], times["adjoint_cpu"][3::2])])
+    if args.backend == "iterative" and len(cpu_stamps) > 2:     # per warm iteration: the flow's Krylov solves
+        per = []
+        for (_, a), (_, b) in zip(cpu_stamps[1:-1], cpu_stamps[2:]):
+            newton = krylov["newton"][a["newton"]:b["newton"]]
+            transposed = krylov["transposed"][a["transposed"]:b["transposed"]]
+            if newton and transposed:
+                per.append((max(t for t, _ in newton), sum(t for t, _ in newton) / len(newton),
+                            sum(t for t, _ in transposed), [i for _, i in newton], [i for _, i in transposed]))
+        row["krylov"] = [{"newton_iterations": p[3], "transposed_iterations": p[4],
+                          "transposed_over_largest_newton_solve": p[2] / p[0],
+                          "transposed_over_mean_newton_solve": p[2] / p[1]} for p in per]
     row["coupling"] = "two-way" if args.two_way else "one-way"
     if floor:
         row["floor"] = floor.report()

@@ -35,8 +35,13 @@ def shipped_mesh(request):
 def cli(monkeypatch, capsys):
     """Run ``tofsi ARGS`` in this process (no interpreter start-up): ``cli(*args, cwd=DIR)``
     returns an object with ``returncode``, ``stdout`` and ``stderr`` like ``subprocess.run``.
-    Log lines go to pytest's capture, not to ``stderr``: tests of logging use a subprocess."""
+    ``stderr`` holds the log lines as the command line writes them (under pytest the root
+    logger has handlers already, so the ``logging.basicConfig`` of ``tofsi.cli`` adds none:
+    this fixture adds the same format for the run). Tests where the process matters use a
+    subprocess: signals, the installed entry point, resource limits, the environment, and
+    Python warnings (pytest records those instead of printing them)."""
     import logging
+    import sys
     import types
 
     from tofsi.cli import LOGGERS, main
@@ -45,7 +50,13 @@ def cli(monkeypatch, capsys):
         if cwd is not None:
             monkeypatch.chdir(cwd)
         capsys.readouterr()
-        status = main([str(a) for a in args])
+        handler = logging.StreamHandler(sys.stderr)                 # capsys's stream, now
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))   # as tofsi.cli's
+        logging.getLogger().addHandler(handler)
+        try:
+            status = main([str(a) for a in args])
+        finally:
+            logging.getLogger().removeHandler(handler)
         out, err = capsys.readouterr()
         return types.SimpleNamespace(returncode=status, stdout=out, stderr=err)
     yield run

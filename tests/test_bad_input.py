@@ -1,4 +1,8 @@
-"""Malformed scenes and command lines: status 2, one line naming the key, nothing written."""
+"""Malformed scenes and command lines: status 2, one line naming the key, nothing written.
+
+Refusals made before computing run in this process (the ``cli`` fixture); a fresh interpreter
+(``tofsi(args, cwd)``) stays where the process matters: resource limits, locks held by another
+process, signals, the example scripts."""
 
 import os
 import subprocess
@@ -65,17 +69,18 @@ CASES = [
 
 
 def tofsi(args, cwd):
+    """``tofsi ARGS`` in a fresh interpreter."""
     return subprocess.run([sys.executable, "-m", "tofsi.cli", *args], capture_output=True, text=True, cwd=cwd)
 
 
 @pytest.mark.parametrize("command,scene,overrides,key", CASES, ids=[c[3] + ":" + " ".join(c[2]) for c in CASES])
-def test_bad_values_exit_2_naming_the_key_and_write_nothing(command, scene, overrides, key, tmp_path):
+def test_bad_values_exit_2_naming_the_key_and_write_nothing(command, scene, overrides, key, cli, tmp_path):
     args = [command, scene, "--output", "out"]
     extra = list(overrides)
     while extra:
         item = extra.pop(0)
         args += [item, extra.pop(0)] if item.startswith("--") else ["--set", item]
-    run = tofsi(args, tmp_path)
+    run = cli(*args, cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2, run.stderr
     assert len(lines) == 1 and key in lines[0] and "Traceback" not in run.stderr
@@ -83,7 +88,7 @@ def test_bad_values_exit_2_naming_the_key_and_write_nothing(command, scene, over
 
 
 @pytest.mark.parametrize("kind", ["missing", "directory", "not toml", "binary", "device"])
-def test_unreadable_or_missing_scene_files_exit_2(kind, tmp_path):
+def test_unreadable_or_missing_scene_files_exit_2(kind, cli, tmp_path):
     path = tmp_path / "scene.toml"
     if kind == "device":                            # said "no such file"
         path = "/dev/null"
@@ -93,7 +98,7 @@ def test_unreadable_or_missing_scene_files_exit_2(kind, tmp_path):
         path.write_text("name = 'x'\n[mesh\nh_min = 1\n")
     elif kind == "binary":
         path.write_bytes(b"\xff\xfe\x00garbage\x00")
-    run = tofsi(["mesh", str(path), "--output", str(tmp_path / "out")], tmp_path)
+    run = cli("mesh", path, "--output", tmp_path / "out", cwd=tmp_path)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
     assert "scene" in run.stderr and not (tmp_path / "out").exists()
     if kind == "device":
@@ -102,8 +107,8 @@ def test_unreadable_or_missing_scene_files_exit_2(kind, tmp_path):
 
 @pytest.mark.parametrize("args", [["mesh"], ["nonsense", FOIL], ["mesh", FOIL, "--set"],
                                   ["mesh", FOIL, "--set", "no_equals_sign"], ["study", FOIL, "--jobs", "x"]])
-def test_malformed_command_lines_exit_2_in_one_line(args, tmp_path):
-    run = tofsi(args, tmp_path)
+def test_malformed_command_lines_exit_2_in_one_line(args, cli, tmp_path):
+    run = cli(*args, cwd=tmp_path)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
     assert os.listdir(tmp_path) == []
 
@@ -130,39 +135,39 @@ def write_design(path, kind, n):
                                        ("outside [0, 1]", "not clipped"), ("text", "not a NumPy .npy file"),
                                        ("wrong size", "needs"), ("pickle", "not a NumPy .npy file"),
                                        ("directory", "is a directory")])
-def test_a_bad_saved_design_exits_2_with_a_plain_message(kind, says, tmp_path):
+def test_a_bad_saved_design_exits_2_with_a_plain_message(kind, says, cli, tmp_path):
     """design.initial values outside [0, 1] were clipped silently; a text file got numpy's
     advice about pickles. Now: one line naming design.initial, saying what is wrong."""
     import tofsi as toolkit
     n = toolkit.Problem(toolkit.load_scene(OPT, ["mesh.h_min=0.1", "mesh.h_max=0.1"])).n_design
     write_design(tmp_path / "design.npy", kind, n)
     before = sorted(os.listdir(tmp_path))
-    run = tofsi(["optimize", OPT, "--output", "out", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1",
-                     "--set", "design.initial=design.npy"], tmp_path)
+    run = cli("optimize", OPT, "--output", "out", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1",
+              "--set", "design.initial=design.npy", cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr
     assert "design.initial" in lines[0] and says in lines[0] and "allow_pickle" not in lines[0]
     assert sorted(os.listdir(tmp_path)) == before
 
 
-def test_a_scene_with_a_byte_order_mark_is_read(tmp_path):
+def test_a_scene_with_a_byte_order_mark_is_read(cli, tmp_path):
     scene = tmp_path / "bom.toml"
     scene.write_bytes(b"\xef\xbb\xbf" + open(FOIL, "rb").read())
-    run = tofsi(["mesh", str(scene), "--output", "out", "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.1"],
-                tmp_path)
+    run = cli("mesh", scene, "--output", "out", "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.1",
+              cwd=tmp_path)
     assert run.returncode == 0, run.stderr
 
 
-def test_a_directory_given_as_the_scene_says_so(tmp_path):
+def test_a_directory_given_as_the_scene_says_so(cli, tmp_path):
     (tmp_path / "scenes").mkdir()
-    run = tofsi(["mesh", "scenes", "--output", "out"], tmp_path)
+    run = cli("mesh", "scenes", "--output", "out", cwd=tmp_path)
     assert run.returncode == 2 and "is a directory" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1
 
 
-def test_a_thin_solid_is_accepted_with_a_warning(tmp_path):
-    run = tofsi(["mesh", FOIL, "--output", "out", "--set", "geometry.solids=[[0.75, 1.25, 0.5, 0.5000001]]",
-                 "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.1"], tmp_path)
+def test_a_thin_solid_is_accepted_with_a_warning(cli, tmp_path):
+    run = cli("mesh", FOIL, "--output", "out", "--set", "geometry.solids=[[0.75, 1.25, 0.5, 0.5000001]]",
+              "--set", "mesh.h_min=0.05", "--set", "mesh.h_max=0.1", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert "WARNING" in run.stderr and "geometry.solids[0]" in run.stderr and "thinner" in run.stderr
 
@@ -186,10 +191,10 @@ def test_overlapping_solids_merge_into_their_union():
 
 
 @pytest.mark.parametrize("args", [["optimize", OPT, "--set", "design.beta=[]"], ["nonsense", FOIL]])
-def test_json_errors_on_stdout(args, tmp_path):
+def test_json_errors_on_stdout(args, cli, tmp_path):
     """--json on exit 2 prints {"error": ...} on stdout (usage errors too)."""
     import json
-    run = tofsi([*args, "--json", "--output", "out"], tmp_path)
+    run = cli(*args, "--json", "--output", "out", cwd=tmp_path)
     assert run.returncode == 2
     payload = json.loads(run.stdout)
     assert payload["exit_status"] == 2 and payload["error"] in run.stderr
@@ -249,11 +254,11 @@ def assert_write_failure(run, folder, failed_name):
     return record
 
 
-def test_a_full_disk_is_refused_before_computing(small_filesystem, tmp_path):
+def test_a_full_disk_is_refused_before_computing(small_filesystem, cli, tmp_path):
     """Issue 25: solve into a 200 KB file system computed, then died with OSError 28. The
     estimate (1 MB for 3200 elements) refuses it before any solve, in one line."""
     fs = small_filesystem(200)
-    run = tofsi(["solve", OPT, "--output", str(fs / "out")], tmp_path)
+    run = cli("solve", OPT, "--output", fs / "out", cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr          # no "solving ..." line
     assert "--output" in lines[0] and "free" in lines[0] and "MB" in lines[0]
@@ -304,9 +309,9 @@ def test_a_file_size_limit_hit_during_an_optimization_keeps_the_iterations_done(
     assert len(json.loads((tmp_path / "out" / "history.json").read_text())) == 3
 
 
-def test_a_scene_name_too_long_for_a_folder_is_refused_before_computing(tmp_path):
+def test_a_scene_name_too_long_for_a_folder_is_refused_before_computing(cli, tmp_path):
     """--set name=<300 characters> with the default results/<name>: OSError 36 after the run."""
-    run = tofsi(["move", FOIL, "--set", "name=" + "a" * 300], tmp_path)
+    run = cli("move", FOIL, "--set", "name=" + "a" * 300, cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr
     assert lines[0].startswith("tofsi: error: name = ") and "300 bytes" in lines[0] and "255" in lines[0]
@@ -315,8 +320,8 @@ def test_a_scene_name_too_long_for_a_folder_is_refused_before_computing(tmp_path
 
 @pytest.mark.parametrize("output,says", [("x" * 300 + "/out", "300 bytes"), ("a\nb", "control character"),
                                          ("/" + "d/" * 2100, "exceed")])
-def test_output_folder_names_the_file_system_cannot_take_are_refused(output, says, tmp_path):
-    run = tofsi(["mesh", FOIL, "--output", output], tmp_path)
+def test_output_folder_names_the_file_system_cannot_take_are_refused(output, says, cli, tmp_path):
+    run = cli("mesh", FOIL, "--output", output, cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr
     assert "--output" in lines[0] and says in lines[0] and os.listdir(tmp_path) == []
@@ -401,11 +406,11 @@ def test_one_process_cannot_lock_a_folder_twice(tmp_path):
                                         ("mover.layers[0]=1:inf:1", "not a finite number"),
                                         ("mover.layers[0]=1:1e9:1", "at most 100000"),
                                         ("mover.yeoh.A20=1e-300:1e300:*1.0000001", "at most 100000")])
-def test_non_finite_and_oversized_sweeps_are_refused_at_once(sweep, says, tmp_path):
+def test_non_finite_and_oversized_sweeps_are_refused_at_once(sweep, says, cli, tmp_path):
     """nan gave a traceback; 1:1e9:1 made a 10^9-value array for 40 s before refusing."""
     import time
     t0 = time.perf_counter()
-    run = tofsi(["study", FOIL, "--output", "out", "--sweep", sweep], tmp_path)
+    run = cli("study", FOIL, "--output", "out", "--sweep", sweep, cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1 and "--sweep" in lines[0] and says in lines[0], run.stderr
     assert time.perf_counter() - t0 < 20 and os.listdir(tmp_path) == []
@@ -421,20 +426,21 @@ def test_a_grid_of_too_many_points_is_refused_before_it_is_made():
 
 
 @pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
-def test_max_memory_must_be_a_positive_number_of_gb(value, tmp_path):
+def test_max_memory_must_be_a_positive_number_of_gb(value, cli, tmp_path):
     """nan was accepted; -1 was refused naming mesh.h_min."""
-    run = tofsi(["move", FOIL, "--output", "out", "--max-memory", value], tmp_path)
+    run = cli("move", FOIL, "--output", "out", "--max-memory", value, cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1 and lines[0].startswith("tofsi: error: --max-memory")
     assert os.listdir(tmp_path) == []
 
 
-def test_resume_and_overwrite_together_are_refused(tmp_path):
-    run = tofsi(["optimize", OPT, "--output", "out", "--resume", "--overwrite"], tmp_path)
+def test_resume_and_overwrite_together_are_refused(cli, tmp_path):
+    run = cli("optimize", OPT, "--output", "out", "--resume", "--overwrite", cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1 and "--resume" in lines[0] and "--overwrite" in lines[0]
 
 
+@pytest.mark.acceptance
 @pytest.mark.parametrize("example", ["mesh_motion_study.py", "tuning_band_study.py"])
 def test_the_study_examples_run_without_arguments(example, tmp_path):
     """They exited 2 asking for a study name; without one they run their small default."""
@@ -447,16 +453,16 @@ def test_the_study_examples_run_without_arguments(example, tmp_path):
     assert (tmp_path / made).is_file()
 
 
-def test_a_scene_file_of_megabytes_is_announced_before_it_is_read(tmp_path):
+def test_a_scene_file_of_megabytes_is_announced_before_it_is_read(cli, tmp_path):
     """A 10 MB scene read for minutes without a word; now a line says what is being read."""
     scene = tmp_path / "big.toml"
     scene.write_text(open(FOIL).read() + ("# padding\n" * 120_000))             # 1.2 MB
-    run = tofsi(["mesh", str(scene), "--output", "out", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1"],
-                tmp_path)
+    run = cli("mesh", scene, "--output", "out", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1",
+              cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert run.stderr.splitlines()[0] == f"reading the scene file {scene} (1 MB) ..."
-    quiet = tofsi(["mesh", str(scene), "--output", "out2", "-q", "--set", "mesh.h_min=0.1",
-                   "--set", "mesh.h_max=0.1"], tmp_path)
+    quiet = cli("mesh", scene, "--output", "out2", "-q", "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1",
+                cwd=tmp_path)
     assert quiet.returncode == 0 and quiet.stderr == ""
 
 
@@ -470,7 +476,7 @@ def test_one_list_entry_is_set_by_its_index():
     assert moved == toolkit.load_scene(FOIL, ["geometry.solids=[[0.75, 1.3, 0.475, 0.525]]"])
 
 
-def test_thousands_of_rectangles_are_refused_before_the_mesh_is_graded(tmp_path):
+def test_thousands_of_rectangles_are_refused_before_the_mesh_is_graded(cli, tmp_path):
     """A 10 MB scene of 350k solids graded for minutes without a word (5000 solids would have
     taken hours): the grid lines their edges need are counted first."""
     import random
@@ -485,7 +491,7 @@ def test_thousands_of_rectangles_are_refused_before_the_mesh_is_graded(tmp_path)
     scene.write_text(re.sub(r"^solids = .*$", "solids = [" + ", ".join(rows) + "]", open(FOIL).read(),
                             flags=re.M))
     t0 = time.perf_counter()
-    run = tofsi(["mesh", str(scene), "--output", "out"], tmp_path)
+    run = cli("mesh", scene, "--output", "out", cwd=tmp_path)
     lines = run.stderr.strip().splitlines()
     assert run.returncode == 2 and len(lines) == 1, run.stderr
     assert "geometry.solids" in lines[0] and "5000 rectangles" in lines[0] and "mesh.max_elements" in lines[0]

@@ -19,8 +19,8 @@ def tofsi(*args, cwd=None):
 
 
 @pytest.mark.parametrize("name", ALL_SCENES)
-def test_mesh_json_reports_node_and_element_counts(name, tmp_path):
-    run = tofsi("mesh", scene_path(name), "--output", tmp_path, "--json")
+def test_mesh_json_reports_node_and_element_counts(name, cli, tmp_path):
+    run = cli("mesh", scene_path(name), "--output", tmp_path, "--json")
     assert run.returncode == 0, run.stderr
     figures = json.loads(run.stdout)
     scene = load(name)
@@ -34,27 +34,28 @@ def test_mesh_json_reports_node_and_element_counts(name, tmp_path):
     ("mesh.h_mni=0.1", "mesh.h_mni"), ("mesh.h_min=-1", "mesh.h_min"),
     ("mesh.h_min=nan", "mesh.h_min"), ("mover.name=sprung", "mover.name"),
 ])
-def test_malformed_scene_exits_2_with_one_line_naming_the_key(override, key, tmp_path):
+def test_malformed_scene_exits_2_with_one_line_naming_the_key(override, key, cli, tmp_path):
     out = tmp_path / "out"
-    run = tofsi("mesh", scene_path("foil_in_channel"), "--set", override, "--output", out)
+    run = cli("mesh", scene_path("foil_in_channel"), "--set", override, "--output", out)
     assert run.returncode == 2
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and key in lines[0] and "Traceback" not in run.stderr
     assert not out.exists()
 
 
-def test_missing_scene_file_exits_2(tmp_path):
-    run = tofsi("mesh", tmp_path / "missing.toml")
+def test_missing_scene_file_exits_2(cli, tmp_path):
+    run = cli("mesh", tmp_path / "missing.toml")
     assert run.returncode == 2 and "no such file" in run.stderr
 
 
 def test_unknown_option_exits_2_in_one_line():
+    """In a fresh interpreter: the exit status of ``python -m tofsi.cli`` itself."""
     run = tofsi("mesh", scene_path("foil_in_channel"), "--frobnicate")
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
 
 
-def test_default_output_is_results_scene_name_under_the_working_directory(tmp_path):
-    run = tofsi("mesh", scene_path("foil_in_channel"), cwd=tmp_path)
+def test_default_output_is_results_scene_name_under_the_working_directory(cli, tmp_path):
+    run = cli("mesh", scene_path("foil_in_channel"), cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "results" / "foil_in_channel" / "mesh.vtu").is_file()
 
@@ -65,9 +66,9 @@ def test_console_script_is_installed():
     assert run.returncode == 0 and "mesh" in run.stdout and "move" in run.stdout
 
 
-def test_mesh_vtu_is_readable_by_an_independent_reader(tmp_path):
+def test_mesh_vtu_is_readable_by_an_independent_reader(cli, tmp_path):
     pv = pytest.importorskip("pyvista")
-    assert tofsi("mesh", scene_path("beam_in_channel"), "--output", tmp_path).returncode == 0
+    assert cli("mesh", scene_path("beam_in_channel"), "--output", tmp_path).returncode == 0
     grid = pv.read(tmp_path / "mesh.vtu")
     scene = load("beam_in_channel")
     mesh = build_mesh(scene.geometry, scene.mesh)

@@ -1,8 +1,6 @@
 """Coupled solves, the mesh-motion block's derivatives, and effects that cost nothing when off."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -146,10 +144,9 @@ def test_fsi_deformation_bends_the_beam_downstream_to_the_requested_tip():
     assert u[tip, 0] > 0 and setup.mesh.points[tip, 1] == pytest.approx(0.5)
 
 
-def test_tofsi_solve_writes_fields_and_figures(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "solve", str(scene_path("beam_in_channel_optimization")),
-                          "--set", "mesh.h_min=0.1", "--set", "mesh.h_max=0.1", "--output", str(tmp_path), "--json"],
-                         capture_output=True, text=True)
+def test_tofsi_solve_writes_fields_and_figures(cli, tmp_path):
+    run = cli("solve", scene_path("beam_in_channel_optimization"), "--set", "mesh.h_min=0.1",
+              "--set", "mesh.h_max=0.1", "--output", tmp_path, "--json")
     assert run.returncode == 0, run.stderr
     figures = json.loads(run.stdout)
     assert figures["converged"] and figures["pressure_drop"] > 0 and figures["compliance"] > 0

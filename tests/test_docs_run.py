@@ -1,4 +1,5 @@
-"""Docs that run: every code block of README.md and every script in examples/ (small sizes)."""
+"""Docs that run: every code block of README.md and every script in examples/ (small sizes).
+The runs are acceptance tests (``pytest -m acceptance``, which CI runs after the default suite)."""
 
 import os
 import re
@@ -44,15 +45,22 @@ def commands(block: str) -> list[list[str]]:
 
 
 def test_the_first_bash_block_is_the_ci_commands():
-    """.ci/run executes the first bash block: the install with the headline (two-way) example, then the tests.
-    They are not rerun here (the example runs below at a small size, the tests are this suite)."""
+    """.ci/run executes the first bash block: the install with the headline (two-way) example, then the
+    default tests; then it runs the acceptance tests. They are not rerun here (the example runs at a
+    small size in this file, the tests are this suite)."""
     language, block = BLOCKS[0]
     lines = commands(block)
     assert language == "bash" and len(lines) == 2
     assert "examples/optimize_fsi.py" in lines[0] and lines[1][:3] == ["python3", "-m", "pytest"]
     assert (ROOT / "examples" / "optimize_fsi.py").is_file()
+    # then the acceptance tests, as README's text below the block says
+    ci = (ROOT / ".ci" / "run").read_text().strip().splitlines()
+    assert "python -m pytest -n 2 -m acceptance" in ci and "`python -m pytest -n 2 -m acceptance`" in README
+    # and last the PETSc tests on two ranks (.ci/petsc installs Debian's PETSc or says why it skips)
+    assert ci[-1] == "bash .ci/petsc" and ci.index("python -m pytest -n 2 -m acceptance") < len(ci) - 1
 
 
+@pytest.mark.acceptance
 @pytest.mark.parametrize("index", [i for i, (lang, _) in enumerate(BLOCKS) if lang == "python"])
 def test_readme_python_blocks_run(index):
     run = subprocess.run([sys.executable, "-c", BLOCKS[index][1]], capture_output=True, text=True,
@@ -60,6 +68,7 @@ def test_readme_python_blocks_run(index):
     assert run.returncode == 0, run.stderr
 
 
+@pytest.mark.acceptance
 def test_readme_command_lines_run_at_a_small_size(tmp_path):
     (tmp_path / "examples").symlink_to(ROOT / "examples")
     lines = [c for lang, block in BLOCKS[1:] if lang == "bash" for c in commands(block)]
@@ -73,6 +82,7 @@ def test_readme_command_lines_run_at_a_small_size(tmp_path):
     assert (tmp_path / "results" / "beam_solved" / "solve.json").is_file()
 
 
+@pytest.mark.acceptance
 @pytest.mark.parametrize("script", sorted(p.name for p in (ROOT / "examples").glob("*.py")))
 def test_every_example_runs_at_a_small_size(script, tmp_path):
     assert script in EXAMPLE_ARGS, f"add {script}'s arguments to EXAMPLE_ARGS"

@@ -1,6 +1,7 @@
 """Fluid topology benchmarks: topFlow's objective, a bend with its outlet on the bottom side,
-and the published double pipes (topology on coarse meshes here; the published numbers in
-the slow tests).
+and the published double pipes (topology on coarse meshes in the acceptance tests, ``-m
+acceptance``, with topFlow's rugby ball as shipped; the other published numbers in the slow
+tests, hours on the published meshes).
 
 Published values: Borrvall & Petersson (2003) J = 25.67 (length 1) and 27.64 (length 1.5);
 Alexandersen's topFlow (2023) phi = 22.0956 and 23.5732 (102 x 102 and 153 x 102 Q1/Q1
@@ -75,6 +76,7 @@ def fluid_at(opt, x, y, radius):
     return float((1 - opt.final_state.rho)[near].mean())
 
 
+@pytest.mark.acceptance
 def test_pipe_bend_optimizes_to_a_channel_from_the_inlet_to_the_bottom_outlet(tmp_path):
     """``tofsi optimize`` on a coarse mesh: the objective falls by more than 30 %, the fluid
     runs diagonally from the left inlet (y ~ 0.8) to the bottom outlet (x ~ 0.8), and the far
@@ -99,6 +101,7 @@ def run_scene(name, tmp_path, *overrides, h=COARSE):
     return opt, opt.run()
 
 
+@pytest.mark.acceptance
 def test_borrvall_petersson_length_1_gives_two_straight_pipes(tmp_path):
     """The published settings (q continued 0.01 -> 0.1) on a 24 x 24 mesh: fluid along y = 1/4
     and 3/4, solid between, the fluid bound active."""
@@ -110,6 +113,7 @@ def test_borrvall_petersson_length_1_gives_two_straight_pipes(tmp_path):
     assert abs(result["constraint"]) < 1e-3
 
 
+@pytest.mark.acceptance
 def test_borrvall_petersson_length_1_5_merges_the_pipes_from_the_uniform_start(tmp_path):
     """Length 1.5 with the q continuation, from the uniform initial design: the "double wrench"
     -- one channel along y = 1/2 in the middle, solid where straight pipes would run."""
@@ -121,6 +125,7 @@ def test_borrvall_petersson_length_1_5_merges_the_pipes_from_the_uniform_start(t
     assert abs(result["constraint"]) < 1e-3
 
 
+@pytest.mark.acceptance
 def test_topflow_double_pipe_gives_two_straight_pipes_to_its_open_outlets(tmp_path):
     """topFlow's settings (Q1/Q1, OC, its objective and q steps) on a 24 x 24 mesh: two pipes,
     solid between them and outside."""
@@ -213,7 +218,7 @@ def test_topflow_settings_reproduce_topflows_values(name, published, iterations,
     assert abs(result["constraint"]) < 1e-3
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 @pytest.mark.parametrize("fraction, published", [(0.94, 13.503), (0.99, 9.839)])
 def test_topflow_rugby_ball_reproduces_topflows_values(fraction, published, tmp_path):
     """topFlow's rugby ball as shipped (about a minute): phi within 0.2 % of topFlow's (measured

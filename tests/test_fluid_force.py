@@ -8,8 +8,6 @@ so the refinement test scales alpha_max with h^-2 and states the fixed-friction 
 """
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -78,7 +76,7 @@ def test_refinement_with_the_friction_scaled_as_h_squared_shrinks_the_gap():
     assert fixed.max() < 1e-3
 
 
-def test_solve_reports_drag_and_lift_as_the_load_resultant_with_and_without_the_structure(tmp_path):
+def test_solve_reports_drag_and_lift_as_the_load_resultant_with_and_without_the_structure(cli, tmp_path):
     base = ["mesh.h_min=0.05", "mesh.h_max=0.1", "effects.fluid=navier-stokes"]
     scene = load("beam_in_channel", *base, "effects.structure=linear-elastic", "structure.youngs_modulus=1e6")
     model = CoupledModel(scene)
@@ -87,18 +85,16 @@ def test_solve_reports_drag_and_lift_as_the_load_resultant_with_and_without_the_
     figures = model.figures(state)
     assert figures["drag"] == pytest.approx(f[0::2].sum(), rel=1e-14, abs=1e-14)
     assert figures["lift"] == pytest.approx(f[1::2].sum(), rel=1e-14, abs=1e-14)
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "solve", str(scene_path("foil_in_channel")),
-                          *sum([["--set", s] for s in [*base, "effects.fluid=stokes"]], []),
-                          "--output", str(tmp_path), "--json"], capture_output=True, text=True)
+    sets = [a for s in [*base, "effects.fluid=stokes"] for a in ("--set", s)]
+    run = cli("solve", scene_path("foil_in_channel"), *sets, "--output", tmp_path, "--json")
     assert run.returncode == 0, run.stderr
     foil = json.loads(run.stdout)
     assert foil["drag"] > 0 and abs(foil["lift"]) < 1e-9 * foil["drag"]      # no structure effect
 
 
-def test_a_floating_structure_is_an_input_error_naming_the_clamp(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "solve", str(scene_path("foil_in_channel")),
-                          "--set", "effects.fluid=navier-stokes", "--set", "effects.structure=linear-elastic",
-                          "--output", str(tmp_path)], capture_output=True, text=True)
+def test_a_floating_structure_is_an_input_error_naming_the_clamp(cli, tmp_path):
+    run = cli("solve", scene_path("foil_in_channel"), "--set", "effects.fluid=navier-stokes",
+              "--set", "effects.structure=linear-elastic", "--output", tmp_path)
     assert run.returncode == 2
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and "structure.clamped" in lines[0]

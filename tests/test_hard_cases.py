@@ -1,8 +1,6 @@
 """Hard cases stay numerically stable: valid meshes or a clear failure, never silent garbage."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -49,11 +47,10 @@ def test_large_foil_motions_give_a_valid_mesh_or_a_diagnostic(mover, motion):
 
 
 @pytest.mark.parametrize("mover", ["yeoh", "spring"])
-def test_cli_never_reports_success_with_an_inverted_mesh(mover, tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "move", str(scene_path("foil_in_channel")),
-                          "--set", f"mover.name={mover}", "--set", "deformation.mode=rotation",
-                          "--set", "deformation.rotation_deg=60", "--output", str(tmp_path), "--json"],
-                         capture_output=True, text=True)
+def test_cli_never_reports_success_with_an_inverted_mesh(mover, cli, tmp_path):
+    run = cli("move", scene_path("foil_in_channel"), "--set", f"mover.name={mover}",
+              "--set", "deformation.mode=rotation", "--set", "deformation.rotation_deg=60",
+              "--output", tmp_path, "--json")
     assert run.returncode in (0, 3), run.stderr
     figures = json.loads(run.stdout)
     if run.returncode == 0:

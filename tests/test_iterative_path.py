@@ -1,7 +1,7 @@
 """``solver.linear_solver = "iterative"``: gradients and optimizations without an LU.
 
 Stated tolerances: the flow's Newton converges to the scene's tolerance with
-FGMRES steps, the adjoint's transposed FGMRES to 1e-8 relative; the
+GMRES steps, the adjoint's transposed GMRES to 1e-8 relative; the
 objective then equals the direct path's to 1e-8 and its gradient to 1e-6
 relative (measured 6e-11 and 5e-9 at 800 elements), the Taylor test of the
 iterative gradient passes (rate > 1.9), and a 14-iteration optimization's
@@ -28,7 +28,7 @@ def problem(*overrides):
 
 
 def test_the_model_solves_without_an_lu():
-    """The flow's Newton steps are FGMRES with the block preconditioner; the structure's solve
+    """The flow's Newton steps are GMRES with the block preconditioner; the structure's solve
     is AMG-CG; both belong to this model only (a direct model beside it keeps its LU)."""
     P, D = problem(*ITERATIVE), problem()
     assert P.model.linear_algebra.iterative and not D.model.linear_algebra.iterative

@@ -184,6 +184,7 @@ def test_the_mesh_quality_constraint_and_its_gradient(tmp_path):
     assert row["passed"] and row["min_rate"] > 1.9 and np.abs(dg[1]).max() > 0, row
 
 
+@pytest.mark.acceptance
 def test_the_quality_constraint_is_met_by_the_optimized_design(tmp_path, cli):
     """The headline scene, coarse: unconstrained, its two-way stage ends with a worst skewness
     near 0.64; with ``design.min_skewness = 0.8`` the constraint is active and met at the end

@@ -53,12 +53,14 @@ def test_max_memory_option_refuses_a_small_solve(tmp_path, capsys):
     assert status == 2 and "0.0 GB are allowed" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("element", ["q2q1", "q1q1"])
-def test_estimate_within_a_factor_1_5_of_the_measured_peak(element):
+@pytest.mark.parametrize("element,backend", [("q2q1", "superlu"), ("q1q1", "superlu"), ("q2q1", "iterative")])
+def test_estimate_within_a_factor_1_5_of_the_measured_peak(element, backend):
     """One real solve in a fresh process (its peak resident memory, VmHWM: unlike ru_maxrss it
-    does not inherit the parent's peak across fork and exec), against the estimate."""
+    does not inherit the parent's peak across fork and exec), against the estimate (direct,
+    and the iterative path's memory model)."""
     h = 2.0 / 90
-    overrides = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"fluid.element={element}"]
+    overrides = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"fluid.element={element}",
+                 f"solver.linear_solver={backend}"]
     code = (
         "import json, re, tofsi; from tofsi.coupling.coupled import CoupledModel\n"
         f"s = tofsi.load_scene({SCENE!r}, {overrides!r})\n"
@@ -68,7 +70,7 @@ def test_estimate_within_a_factor_1_5_of_the_measured_peak(element):
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                          check=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     measured = json.loads(out.stdout.strip().splitlines()[-1])
-    est = memory.estimate(tofsi.load_scene(SCENE, overrides), "solve")
+    est = memory.estimate(tofsi.load_scene(SCENE, overrides), "solve", backend)
     assert 1 / 1.5 <= est.peak_bytes / measured <= 1.5, (est.peak_bytes, measured)
 
 

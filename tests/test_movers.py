@@ -179,10 +179,8 @@ CONTRACT = {"min_skewness", "min_area_change", "max_area_change", "n_inverted", 
 
 @pytest.mark.parametrize("scene", ["beam_in_channel", "foil_in_channel"])
 @pytest.mark.parametrize("name", ["spring", "yeoh"])
-def test_tofsi_move_json_has_the_contract_keys(scene, name, tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "move", str(scene_path(scene)),
-                          "--set", f"mover.name={name}", "--output", str(tmp_path), "--json"],
-                         capture_output=True, text=True)
+def test_tofsi_move_json_has_the_contract_keys(scene, name, cli, tmp_path):
+    run = cli("move", scene_path(scene), "--set", f"mover.name={name}", "--output", tmp_path, "--json")
     assert run.returncode == 0, run.stderr
     figures = json.loads(run.stdout)
     assert CONTRACT <= set(figures) and figures["converged"] and figures["n_inverted"] == 0
@@ -190,10 +188,8 @@ def test_tofsi_move_json_has_the_contract_keys(scene, name, tmp_path):
     assert {"moved_mesh.vtu", "moved_mesh.png", "move.json"} <= {p.name for p in tmp_path.iterdir()}
 
 
-def test_tofsi_move_reports_an_inverted_linear_mesh_with_status_3(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "move", str(scene_path("foil_in_channel")),
-                          "--set", "mover.name=linear", "--output", str(tmp_path), "--json"],
-                         capture_output=True, text=True)
+def test_tofsi_move_reports_an_inverted_linear_mesh_with_status_3(cli, tmp_path):
+    run = cli("move", scene_path("foil_in_channel"), "--set", "mover.name=linear", "--output", tmp_path, "--json")
     assert run.returncode == 3
     diagnostic = json.loads((tmp_path / "diagnostic.json").read_text())
     assert diagnostic["quality"]["n_inverted"] > 0 and "worst_element" in diagnostic["quality"]
@@ -201,14 +197,12 @@ def test_tofsi_move_reports_an_inverted_linear_mesh_with_status_3(tmp_path):
 
 
 @pytest.mark.parametrize("name", MOVERS)
-def test_foil_squeezed_against_the_wall_ends_in_status_3(name, tmp_path):
+def test_foil_squeezed_against_the_wall_ends_in_status_3(name, cli, tmp_path):
     """The foil's lower face moves from y = 0.475 to 0.001, still inside the channel: the fluid
     layer below it is crushed 475-fold, which every mover fails at. (Through the wall, e.g. by
     0.6 m, is bad input: exit 2 before moving, see test_failures.py.)"""
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "move", str(scene_path("foil_in_channel")),
-                          "--set", f"mover.name={name}", "--set", "deformation.translation=0.474",
-                          "--set", "mover.yeoh.max_cutbacks=6", "--output", str(tmp_path)],
-                         capture_output=True, text=True)
+    run = cli("move", scene_path("foil_in_channel"), "--set", f"mover.name={name}",
+              "--set", "deformation.translation=0.474", "--set", "mover.yeoh.max_cutbacks=6", "--output", tmp_path)
     assert run.returncode == 3, run.stderr
     assert "Traceback" not in run.stderr and (tmp_path / "diagnostic.json").is_file()
 

@@ -83,15 +83,15 @@ def test_resume_without_a_checkpoint_is_an_input_error(tmp_path):
         run(tmp_path / "none", resume=True)
 
 
-def test_tofsi_optimize_writes_only_into_its_output_folder(tmp_path):
+def test_tofsi_optimize_writes_only_into_its_output_folder(cli, tmp_path):
     work = tmp_path / "work"
     work.mkdir()
     before = set(os.listdir(scene_path("beam_in_channel_optimization").parent))
-    args = [sys.executable, "-m", "tofsi.cli", "optimize", str(scene_path("beam_in_channel_optimization")),
-            "--output", "out", "--json", "--set", "optimizer.output_every=5"]
+    args = ["optimize", scene_path("beam_in_channel_optimization"), "--output", "out", "--json",
+            "--set", "optimizer.output_every=5"]
     for o in TINY:
         args += ["--set", o]
-    proc = subprocess.run(args, capture_output=True, text=True, cwd=work)
+    proc = cli(*args, cwd=work)
     assert proc.returncode == 0, proc.stderr
     assert os.listdir(work) == ["out"]
     assert set(os.listdir(scene_path("beam_in_channel_optimization").parent)) == before
@@ -107,6 +107,7 @@ def test_non_discreteness_is_zero_for_black_and_white_and_100_for_grey():
     assert non_discreteness(np.full(7, 0.5)) == pytest.approx(100.0)
 
 
+@pytest.mark.acceptance
 def test_double_pipe_gives_two_separate_pipes(tmp_path):
     """Borrvall-Petersson, length 1: the fluid forms two straight pipes, solid between them."""
     scene = tofsi.load_scene(scene_path("double_pipe"), ["mesh.h_min=0.05", "mesh.h_max=0.05",
@@ -123,7 +124,7 @@ def test_double_pipe_gives_two_separate_pipes(tmp_path):
     assert result["constraint"] <= 1e-3
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_default_beam_in_channel_scene_end_to_end(tmp_path):
     """Issue acceptance on the shipped scene through the command line (about two minutes):
     the objective falls, the volume holds within 1 % of the bound, the design is nearly
@@ -141,7 +142,7 @@ def test_default_beam_in_channel_scene_end_to_end(tmp_path):
     assert {"convergence.png", "design_final.png", "design_series.pvd"} <= set(os.listdir(tmp_path))
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_double_pipe_objective_lies_between_the_published_values(tmp_path):
     """Full 50 x 50 double pipe (about a minute): two pipes, and a dissipation between
     topFlow's 22.0956 and Borrvall-Petersson's 25.67 (different meshes and discretizations)."""

@@ -139,7 +139,7 @@ def test_pressure_load_tends_to_the_no_slip_bodys_pressure_force(element):
     assert force[0] < 0.35 * total.force()[0]                           # a third of the drag at most
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_toflux_starting_compliance_is_toflux_value():
     """TOFLUX's notebook at its first iteration (beta 1, SIMP exponent 1, the design 1e-4 with the
     wall filtered in): compliance 1.07 when TOFLUX itself was run (issue 24). tofsi with TOFLUX's

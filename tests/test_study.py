@@ -2,8 +2,6 @@
 
 import csv
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -65,11 +63,9 @@ def test_read_csv_restores_what_write_csv_wrote(tmp_path):
     assert back[1]["value"] == 30.0 and back[1]["default"] is False
 
 
-def test_tofsi_study_sweeps_stiffening_and_reports_the_best(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "study", str(scene_path("foil_in_channel")),
-                          "--set", "mover.name=linear", "--set", "mesh.h_min=0.025",
-                          "--sweep", "mover.layers[0]=1:4:3", "--output", str(tmp_path), "--json"],
-                         capture_output=True, text=True)
+def test_tofsi_study_sweeps_stiffening_and_reports_the_best(cli, tmp_path):
+    run = cli("study", scene_path("foil_in_channel"), "--set", "mover.name=linear", "--set", "mesh.h_min=0.025",
+              "--sweep", "mover.layers[0]=1:4:3", "--output", tmp_path, "--json")
     assert run.returncode == 0, run.stderr
     figures = json.loads(run.stdout)
     rows = list(csv.DictReader(open(tmp_path / "study.csv")))
@@ -79,9 +75,7 @@ def test_tofsi_study_sweeps_stiffening_and_reports_the_best(tmp_path):
     assert (tmp_path / "study.png").is_file()
 
 
-def test_tofsi_study_rejects_a_bad_sweep_key_before_running(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "tofsi.cli", "study", str(scene_path("foil_in_channel")),
-                          "--sweep", "mover.yeoh.A21=1:2:1", "--output", str(tmp_path / "o")],
-                         capture_output=True, text=True)
+def test_tofsi_study_rejects_a_bad_sweep_key_before_running(cli, tmp_path):
+    run = cli("study", scene_path("foil_in_channel"), "--sweep", "mover.yeoh.A21=1:2:1", "--output", tmp_path / "o")
     assert run.returncode == 2 and "mover.yeoh.A21" in run.stderr
     assert not (tmp_path / "o").exists()

@@ -146,7 +146,8 @@ def two_layer_grid_search(base):
     return max([*points.values(), *fine.values()]), len(points) + len(fine)
 
 
-@pytest.mark.parametrize("mover", ["linear", pytest.param("yeoh", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("mover", [pytest.param("linear", marks=pytest.mark.acceptance),
+                                   pytest.param("yeoh", marks=pytest.mark.slow)])
 def test_tuning_beats_the_two_layer_grid_search_with_a_tenth_of_its_solves(mover):
     """Coarse beam: the best point of the grid search (its own moves are the truth) against
     tuning given a tenth of the grid's moves as mover solves, moves and adjoints together."""

@@ -31,9 +31,12 @@ class SparsePattern:
     On the first assembly the CSR structure comes from scipy's COO-to-CSR
     conversion and every element value gets its slot in the CSR data array
     (dropped values the slot ``nnz``, cut off); only the slots are kept (one
-    int64 per element value), the triplet indices are not. Each assembly is
-    then one ``bincount``, summing in the same order every time, so results
-    never depend on how many assemblies came before (bitwise reproducible runs).
+    int32 per element value while ``nnz < 2^31``), the triplet indices and
+    ``keep`` are not. Each assembly then adds the element values into their
+    slots in element order (``np.add.at``: no index copy, and by chunks of
+    elements with :meth:`add`, so the element matrices need not all be held),
+    the same sums in the same order every time, so results never depend on how
+    many assemblies came before (bitwise reproducible runs).
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
@@ -50,50 +53,71 @@ class SparsePattern:
         self.diagonal_slot = None
         self.indices = self.indptr = None
 
-    def _triplets(self):
-        E, a = self.element_rows.shape
-        b = self.element_cols.shape[1]
-        rows = np.concatenate([np.broadcast_to(self.element_rows[:, :, None], (E, a, b)).ravel(), self.diagonal])
-        cols = np.concatenate([np.broadcast_to(self.element_cols[:, None, :], (E, a, b)).ravel(), self.diagonal])
-        return rows.astype(np.int64), cols.astype(np.int64)
-
-    def _ensure_slots(self) -> None:
+    def _ensure_slots(self, chunk: int = 4096) -> None:
+        """The CSR structure and every element value's slot, without the triplets: the pattern
+        is the product of the rows' and the columns' element incidences (scipy's sparse
+        product, no duplicates formed), and the slots are searched chunk by chunk of elements
+        among the sorted keys ``row * n_cols + col`` (at most about 3 int64 per nonzero held
+        at once: a sixth of the triplets' COO-to-CSR conversion)."""
         if self.element_slot is not None:
             return
-        rows, cols = self._triplets()
-        A = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=self.shape).tocsr()
-        A.sum_duplicates()
+        E, a = self.element_rows.shape
+        b = self.element_cols.shape[1]
+        n_rows, n_cols = self.shape
+        k = self.diagonal.size                                     # the extra diagonal: 1 x 1 "elements"
+        rows = sp.csc_matrix((np.ones(E * a + k, dtype=np.float32), np.r_[self.element_rows.ravel(), self.diagonal],
+                              np.r_[np.arange(0, E * a + 1, a), E * a + 1 + np.arange(k)]), shape=(n_rows, E + k))
+        cols = sp.csr_matrix((np.ones(E * b + k, dtype=np.float32), np.r_[self.element_cols.ravel(), self.diagonal],
+                              np.r_[np.arange(0, E * b + 1, b), E * b + 1 + np.arange(k)]), shape=(E + k, n_cols))
+        A = rows.tocsr() @ cols
+        del rows, cols
+        A.sort_indices()
         self.indices, self.indptr = A.indices, A.indptr
         del A
-        row_of = np.repeat(np.arange(self.shape[0], dtype=np.int64), np.diff(self.indptr))
-        keys = row_of * self.shape[1] + self.indices
-        del row_of
-        slot = np.searchsorted(keys, rows * self.shape[1] + cols)
-        del keys, rows, cols
-        n = self.n_element_values
-        self.diagonal_slot = slot[n:].copy()
-        self.element_slot = (slot[:n] if self.keep is None
-                             else np.where(self.keep.ravel(), slot[:n], self.indices.size))
+        keys = np.repeat(np.arange(n_rows, dtype=np.int64), np.diff(self.indptr))
+        keys *= n_cols
+        keys += self.indices                                       # sorted: row-major, columns sorted
+        nnz = self.indices.size
+        index = np.int32 if nnz < np.iinfo(np.int32).max else np.int64
+        self.diagonal_slot = np.searchsorted(keys, self.diagonal * n_cols + self.diagonal).astype(index)
+        self.element_slot = np.empty((E, a * b), dtype=index)    # (E, a b); dropped values: nnz
+        for start in range(0, E, chunk):
+            e = slice(start, min(start + chunk, E))
+            wanted = (self.element_rows[e, :, None].astype(np.int64) * n_cols + self.element_cols[e, None, :])
+            slot = np.searchsorted(keys, wanted.reshape(wanted.shape[0], -1))
+            if self.keep is not None:
+                slot = np.where(self.keep[e].reshape(slot.shape), slot, nnz)
+            self.element_slot[e] = slot
+        self.keep = None
 
     @property
     def nnz(self) -> int:
         self._ensure_slots()
         return int(self.indices.size)
 
-    def assemble(self, values: np.ndarray, diagonal: np.ndarray | float | None = None):
-        """CSR matrix from element values ``(E, a, b)`` and the extra diagonal entries
-        (element values first, then the diagonal, in that order every time)."""
-        self._ensure_slots()
-        nnz = self.nnz
-        values = values.reshape(-1)
-        if np.iscomplexobj(values):
-            data = (np.bincount(self.element_slot, weights=values.real, minlength=nnz + 1)
-                    + 1j * np.bincount(self.element_slot, weights=values.imag, minlength=nnz + 1))[:nnz]
-        else:
-            data = np.bincount(self.element_slot, weights=values, minlength=nnz + 1)[:nnz]
+    def zeros(self, dtype=float) -> np.ndarray:
+        """A zero data array to :meth:`add` element values into (``nnz + 1``: the last slot
+        takes the dropped values)."""
+        return np.zeros(self.nnz + 1, dtype=dtype)
+
+    def add(self, data: np.ndarray, elements: slice, values: np.ndarray) -> None:
+        """Add the values ``(e, a, b)`` of the elements ``elements`` (a slice) into ``data``."""
+        np.add.at(data, self.element_slot[elements].reshape(-1), values.reshape(-1))
+
+    def matrix(self, data: np.ndarray, diagonal: np.ndarray | float | None = None):
+        """The CSR matrix of ``data`` (from :meth:`zeros` and :meth:`add`) with the extra
+        diagonal entries added last."""
+        data = data[:self.nnz]
         if self.diagonal_slot.size:
             np.add.at(data, self.diagonal_slot, 0.0 if diagonal is None else diagonal)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+    def assemble(self, values: np.ndarray, diagonal: np.ndarray | float | None = None):
+        """CSR matrix from element values ``(E, a, b)`` and the extra diagonal entries
+        (element values first, then the diagonal, in that order every time)."""
+        data = self.zeros(values.dtype)
+        self.add(data, slice(None), values)
+        return self.matrix(data, diagonal)
 
 
 def assemble_vector(dofs: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:

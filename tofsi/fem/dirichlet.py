@@ -29,9 +29,9 @@ class DirichletOperator:
         self.is_fixed = np.zeros(size, dtype=bool)
         self.is_fixed[self.fixed] = True
         self.free = np.flatnonzero(~self.is_fixed)
-        self.keep = ~(self.is_fixed[rows][:, :, None] | self.is_fixed[cols][:, None, :])
         self.keep_rows = ~self.is_fixed[rows][:, :, None]
-        self.pattern = SparsePattern(rows, cols, (size, size), extra_diagonal=self.fixed, keep=self.keep)
+        keep = self.keep_rows & ~self.is_fixed[cols][:, None, :]      # (E, a, b): held until the slots are made
+        self.pattern = SparsePattern(rows, cols, (size, size), extra_diagonal=self.fixed, keep=keep)
         self._row_pattern = None
 
     def matrix(self, Ke: np.ndarray):

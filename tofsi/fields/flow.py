@@ -145,7 +145,7 @@ class FlowLinearization(EliminatedLinearization):
         return moved_mesh(self.fields, self.block.inputs)
 
     def _linearize(self):
-        J, R, _ = self.flow.jacobian(self.value, self.X, self.rho, params=self.params)
+        J, R = self.flow.jacobian(self.value, self.X, self.rho, params=self.params)
         self._J = J
         if self._residual is None:
             self._residual = self.block.constrain(R, self.value, self.params)
@@ -268,7 +268,8 @@ class FlowEntry(Field):
     def build(self, model):
         from tofsi.physics.flow import Flow
         return Flow(model.mesh, model.scene.fluid, stokes=model.scene.effects.fluid == "stokes",
-                    linear_algebra=model.linear_algebra)
+                    linear_algebra=model.linear_algebra,
+                    keep_element_jacobians=model.scene.effects.coupling == "two-way")
 
     def block(self, model, two_way):
         return FlowBlock(model.flow, moving_mesh=two_way)

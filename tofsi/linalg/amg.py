@@ -35,6 +35,7 @@ class AMGSolver:
     """
 
     exact = False
+    linear_preconditioner = True    # a V-cycle is one fixed linear operator (GMRES(m) in RecyclingSolver)
     setup_iterations = 12      # a hierarchy costs about 12 preconditioned CG iterations to build
 
     def __init__(self, A: sp.spmatrix, near_null: np.ndarray | None = None, tol: float = 1e-10,

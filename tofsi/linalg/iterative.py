@@ -39,7 +39,10 @@ by ``P^T`` (block lower triangular: ``u = A~^{-T} f``, ``p = S~^{-1} (g - B u)``
 with, for ``A~^{-T}``, the hierarchy of ``A`` itself when ``A`` is nearly
 symmetric (``|A - A^T|_F <= SHARED_HIERARCHY_ASYMMETRY |A|_F``: the convection
 is weak next to the viscous and Brinkman terms) and otherwise one built on
-``A^T`` (on first use). Measured on the beam scene at 80 x 40 elements,
+``A^T`` (on first use). A nearly symmetric ``A`` gets pyamg's symmetric
+smoothed aggregation (``R = P^T``): the same iterations at 80 x 40 (94 / 55
+forward / transposed) and a setup that peaks at 10 instead of 14 kB per
+element (it smooths no second prolongator with ``A^T``). Measured on the beam scene at 80 x 40 elements,
 transposed FGMRES iterations with the hierarchy of ``A^T`` / of ``A``: Re 1
 (asymmetry 0.005) 98 / 99 and 153 / 154 (gray and 0/1 design), Re 10
 (asymmetry 0.048) 126 / 210 and 185 / 356. The transposed solves are the
@@ -66,18 +69,34 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from tofsi.core.errors import NumericalError
-from tofsi.linalg.recycling import GMRES_RESTART, flexible_gmres
+from tofsi.linalg.krylov import gmres
 
 log = logging.getLogger(__name__)
 FLOOR = 1e-2            # alpha >= FLOOR mu / h^2 in L_alpha (measured: 1e-2 and 1 give the same counts)
 SHARED_HIERARCHY_ASYMMETRY = 1e-2     # below it the hierarchy of A serves A^T (module docstring)
 TRANSPOSE_TOL = 1e-8                  # the adjoint's transposed solves (module docstring)
 PRESSURE_SOLVERS = ("amg", "direct")
+RESTART = 30            # GMRES(30): the iterations of FGMRES(50) at 80 x 40 (94 / 55 against 93 / 56,
+                        # forward / transposed), a third of its basis; GMRES(20) needs 124 forward
 
 
 def velocity_near_null(n_velocity: int) -> np.ndarray:
     """The two constant modes ``(n_v, 2)`` of node-interleaved plane velocities (AMG's near null space)."""
     return np.kron(np.ones((n_velocity // 2, 1)), np.eye(2))
+
+
+def asymmetry(A: sp.csr_matrix, chunk: int = 1 << 20) -> float:
+    """``|A - A^T|_F / |A|_F`` holding one transposed copy of ``A`` (``A - A^T`` and its
+    squares, 12 kB per element of the flow at once, are not formed): on a structurally
+    symmetric pattern with sorted indices, ``A^T``'s data is aligned with ``A``'s."""
+    A.sort_indices()
+    At = A.T.tocsr()
+    At.sort_indices()
+    if not (np.array_equal(A.indptr, At.indptr) and np.array_equal(A.indices, At.indices)):
+        return float(spla.norm(A - At) / max(spla.norm(A), 1e-300))
+    squares = sum(float(np.sum((A.data[k:k + chunk] - At.data[k:k + chunk]) ** 2))
+                  for k in range(0, A.data.size, chunk))
+    return float(np.sqrt(squares) / max(np.linalg.norm(A.data), 1e-300))
 
 
 def _amg(M: sp.csr_matrix, near_null=None, symmetric: bool = False):
@@ -87,7 +106,7 @@ def _amg(M: sp.csr_matrix, near_null=None, symmetric: bool = False):
 
 
 class BlockSaddlePreconditioner:
-    """Block-triangular preconditioner of a saddle-point matrix, and flexible GMRES with it.
+    """Block-triangular preconditioner of a saddle-point matrix, and GMRES(m) with it.
 
     A : the square matrix ``[[A, B^T], [B, C]]`` with the first ``n_velocity`` unknowns the
         velocities; ``C`` holds only Dirichlet (pinned pressure) identity rows
@@ -96,12 +115,14 @@ class BlockSaddlePreconditioner:
         (0 on fixed dofs), or None to use ``M_mu`` alone
     fixed : ``(n,)`` bool, the Dirichlet dofs (identity rows and columns of ``A``)
     pressure_solver : ``amg`` (a V-cycle on ``L_alpha``) or ``direct`` (its sparse LU)
-    tol, transpose_tol : FGMRES tolerances (scaled relative residual) of the solves with ``J``
+    tol, transpose_tol : GMRES tolerances (scaled relative residual) of the solves with ``J``
         and with ``J^T``
     """
 
     exact = False
     symmetric = False
+    linear_preconditioner = True    # one fixed linear operator: GMRES(m), not FGMRES
+    restart = RESTART
     setup_iterations = 8       # measured: one AMG setup costs about as much as 8 FGMRES iterations
 
     def __init__(self, A: sp.spmatrix, n_velocity: int, mass: np.ndarray, darcy_weights: np.ndarray | None,
@@ -111,24 +132,25 @@ class BlockSaddlePreconditioner:
             raise ValueError(f"pressure_solver {pressure_solver!r}: allowed {PRESSURE_SOLVERS}")
         A = sp.csr_matrix(A)
         nv = n_velocity
-        self.J, self.shape, self.tol, self.max_iter = A, A.shape, tol, max_iter
+        self.shape, self.tol, self.max_iter = A.shape, tol, max_iter
         self.transpose_tol = transpose_tol
         self.nv = nv
         self.iterations = 0
         self.fixed_p = np.flatnonzero(np.asarray(fixed)[nv:])
         self.A = A[:nv, :nv].tocsr()                                 # (n_v, n_v)
-        self.Bt = A[:nv, nv:].tocsr()                                # (n_v, n_p)
-        self.B = A[nv:, :nv].tocsr()                                 # (n_p, n_v)
+        self.B = A[nv:, :nv].tocsr()                                 # (n_p, n_v); the (v, p) block is B^T
+        self.pinned = np.zeros(A.shape[0] - nv)                      # (n_p,) C: 1 on pinned pressures
+        self.pinned[self.fixed_p] = 1.0
         self.mass = np.array(mass, dtype=float)
         self.mass[self.fixed_p] = np.inf                             # pinned pressures: set apart
-        self._near_null = velocity_near_null(nv)
-        self._ml = _amg(self.A, self._near_null)
+        self.asymmetry = asymmetry(self.A)
+        nearly_symmetric = self.asymmetry <= SHARED_HIERARCHY_ASYMMETRY
+        self._ml = _amg(self.A, velocity_near_null(nv), symmetric=nearly_symmetric)
         self._cycle = self._ml.aspreconditioner(cycle="V").matvec
-        self.asymmetry = float(spla.norm(self.A - self.A.T) / max(spla.norm(self.A), 1e-300))
-        self._cycle_t = self._cycle if self.asymmetry <= SHARED_HIERARCHY_ASYMMETRY else None
+        self._cycle_t = self._cycle if nearly_symmetric else None
         self._darcy = None
         if darcy_weights is not None:
-            L = (self.B @ sp.diags(darcy_weights) @ self.Bt).tocsr()   # (n_p, n_p) SPD on free pressures
+            L = (self.B @ sp.diags(darcy_weights) @ self.B.T).tocsr()  # (n_p, n_p) SPD on free pressures
             if self.fixed_p.size:
                 keep = np.ones(L.shape[0])
                 keep[self.fixed_p] = 0.0
@@ -151,7 +173,7 @@ class BlockSaddlePreconditioner:
         return _amg(L, symmetric=True).aspreconditioner(cycle="V").matvec
 
     def _bytes(self) -> int:
-        total = sum(M.data.nbytes + M.indices.nbytes + M.indptr.nbytes for M in (self.A, self.B, self.Bt))
+        total = sum(M.data.nbytes + M.indices.nbytes + M.indptr.nbytes for M in (self.A, self.B))
         for level in self._ml.levels:
             for name in ("A", "P", "R"):
                 M = getattr(level, name, None)
@@ -171,7 +193,7 @@ class BlockSaddlePreconditioner:
         """``P^{-1} r``: the pressure first, then the velocity with it."""
         nv = self.nv
         p = self._schur(r[nv:])
-        u = self._cycle(r[:nv] - self.Bt @ p)
+        u = self._cycle(r[:nv] - self.B.T @ p)
         return np.concatenate([u, p])
 
     def _apply_transpose(self, r: np.ndarray) -> np.ndarray:
@@ -179,7 +201,7 @@ class BlockSaddlePreconditioner:
         symmetric, else of ``A^T``'s), then the pressure."""
         nv = self.nv
         if self._cycle_t is None:
-            self._cycle_t = _amg(self.A.T.tocsr(), self._near_null).aspreconditioner(cycle="V").matvec
+            self._cycle_t = _amg(self.A.T.tocsr(), velocity_near_null(self.nv)).aspreconditioner(cycle="V").matvec
         u = self._cycle_t(r[:nv])
         p = self._schur(r[nv:] - self.B @ u)
         return np.concatenate([u, p])
@@ -189,7 +211,7 @@ class BlockSaddlePreconditioner:
         return self._apply_transpose if transpose else self._apply
 
     def _gmres(self, M, b: np.ndarray, apply, tol: float) -> np.ndarray:
-        """FGMRES on ``D^{-1/2} M D^{-1/2} y = D^{-1/2} b``, ``x = D^{-1/2} y`` (same iterates'
+        """GMRES(m) on ``D^{-1/2} M D^{-1/2} y = D^{-1/2} b``, ``x = D^{-1/2} y`` (same iterates'
         preconditioned operator, the scaled residual norm) to ``tol``."""
         s = self.scale
         Ms = spla.LinearOperator(M.shape, matvec=lambda y: s * (M @ (s * y)), dtype=float)
@@ -197,29 +219,40 @@ class BlockSaddlePreconditioner:
         bnorm = float(np.linalg.norm(bs))
         if bnorm == 0.0:
             return np.zeros_like(b)
-        y, its = flexible_gmres(Ms, bs, lambda r: apply(r / s) / s, tol * bnorm, self.max_iter,
-                                GMRES_RESTART)
+        y, its = gmres(Ms, bs, lambda r: apply(r / s) / s, tol * bnorm, self.max_iter, self.restart)
         self.iterations = its
         relative = float(np.linalg.norm(bs - Ms @ y)) / bnorm
         x = s * y
-        log.info("block-preconditioned FGMRES: %d iterations, scaled residual %.2e relative", its, relative)
+        log.info("block-preconditioned GMRES: %d iterations, scaled residual %.2e relative", its, relative)
         if not np.all(np.isfinite(x)) or relative > 1.01 * tol:
-            raise NumericalError("block-preconditioned FGMRES did not converge",
+            raise NumericalError("block-preconditioned GMRES did not converge",
                                  {"iterations": its, "relative_residual": relative, "size": M.shape[0]})
         return x
 
     def solve_with(self, A, b: np.ndarray, transpose: bool = False) -> np.ndarray:
         """``A^{-1} b`` (``A^{-T} b``) for ``A`` this or a nearby matrix (a later Newton iterate's),
-        by FGMRES with this preconditioner to ``tol`` (``transpose_tol``) in the scaled norm
+        by GMRES with this preconditioner to ``tol`` (``transpose_tol``) in the scaled norm
         (NumericalError otherwise)."""
         if transpose:
             return self._gmres(A.T, b, self._apply_transpose, self.transpose_tol)
         return self._gmres(A, b, self._apply, self.tol)
 
+    def matrix(self) -> spla.LinearOperator:
+        """``J = [[A, B^T], [B, C]]`` from the blocks held (``C`` the pinned pressures'
+        identity), as an operator: the assembled matrix is not kept beside its blocks."""
+        nv = self.nv
+
+        def product(x, transpose):
+            v, p = x[:nv], x[nv:]
+            top = (self.A.T @ v if transpose else self.A @ v) + self.B.T @ p
+            return np.concatenate([top, self.B @ v + self.pinned * p])
+        return spla.LinearOperator(self.shape, matvec=lambda x: product(x, False),
+                                   rmatvec=lambda x: product(x, True), dtype=float)
+
     def solve(self, b: np.ndarray) -> np.ndarray:
-        """``J^{-1} b`` by FGMRES to ``tol`` relative to ``|D^{-1/2} b|`` (NumericalError otherwise)."""
-        return self.solve_with(self.J, b)
+        """``J^{-1} b`` by GMRES to ``tol`` relative to ``|D^{-1/2} b|`` (NumericalError otherwise)."""
+        return self.solve_with(self.matrix(), b)
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
         """``J^{-T} b``, as :meth:`solve` to ``transpose_tol``."""
-        return self.solve_with(self.J, b, transpose=True)
+        return self.solve_with(self.matrix(), b, transpose=True)

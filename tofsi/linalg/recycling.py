@@ -10,6 +10,7 @@ import pyamg.krylov
 import scipy.sparse.linalg as spla
 
 from tofsi.core.errors import NumericalError
+from tofsi.linalg.krylov import gmres
 
 log = logging.getLogger(__name__)
 GMRES_RESTART = 50          # restart length of GMRES preconditioned by an AMG cycle
@@ -114,8 +115,9 @@ class RecyclingSolver:
                    else int(self.fresh_cost * math.log10(r0 / goal) + 2 * setup) + 1)
             if self.solver.symmetric:
                 x, its = self._cg(A, b, apply, x0, goal, cap)
-            else:
-                x, its = flexible_gmres(A, b, apply, goal, cap, GMRES_RESTART, x0)
+            else:                          # GMRES(m) for a fixed linear preconditioner, else FGMRES
+                x, its = gmres(A, b, apply, goal, cap, getattr(self.solver, "restart", GMRES_RESTART), x0,
+                               flexible=not getattr(self.solver, "linear_preconditioner", False))
         self.krylov_iterations += its
         residual = float(np.linalg.norm(b - A @ x))
         ok = bool(np.all(np.isfinite(x))) and residual <= 1.01 * goal

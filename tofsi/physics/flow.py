@@ -45,6 +45,7 @@ from tofsi.linalg.backends import resolve
 from tofsi.physics.flow_boundary import FlowBoundary
 from tofsi.physics.flow_preconditioner import flow_preconditioner
 from tofsi.physics.fluid_elements import ELEMENTS
+from tofsi.physics.fluid_kernel import CHUNK
 
 log = logging.getLogger(__name__)
 ROUND_OFF = 64 * np.finfo(float).eps        # componentwise backward error that counts as exact
@@ -84,11 +85,17 @@ class Flow:
         configuration (complex-safe, so shape derivatives include it)
     linear_algebra : the model's :class:`~tofsi.linalg.LinearAlgebra` (default: superlu, or the
         process default)
+    keep_element_jacobians : keep the last Jacobian evaluation's element matrices ``K_e``
+        (``(E, m, m)``: 3.9 kB per element for Taylor-Hood) for the two-way coupling's assembled
+        fluid-load partial; without it :meth:`jacobian` assembles chunk by chunk and the fluid
+        load's adjoint product recomputes them chunk by chunk (:meth:`element_jacobian_chunks`)
     """
 
     def __init__(self, mesh, settings, stokes: bool = False, boundary_velocity=None,
-                 body_force=None, linear_algebra: LinearAlgebra | None = None):
+                 body_force=None, linear_algebra: LinearAlgebra | None = None,
+                 keep_element_jacobians: bool = False):
         self.mesh, self.settings = mesh, settings
+        self.keep_element_jacobians = keep_element_jacobians
         self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.body_force = body_force
         self.density = 0.0 if stokes else settings.density
@@ -197,11 +204,40 @@ class Flow:
         return self.kept_residuals.get(
             key, lambda: self.element_residual(w, x, rho, jacobian=False, density=density, params=params)[0])
 
+    def element_jacobian_chunks(self, w, x=None, rho=None, params=None, density=None, chunk: int = CHUNK):
+        """``(elements (slice), R_e, K_e)`` chunk by chunk of ``chunk`` elements (the kept
+        evaluation at once where it holds these inputs): the element Jacobians without all of
+        them held at a time."""
+        both = self.kept_elements.peek(self.evaluation_key(w, x, rho, params, density))
+        if both is not None:
+            yield slice(None), both[0], both[1]
+            return
+        ve, pe = self.split(w)
+        Xe = self.corners(x)
+        alpha, force = self.alpha(rho, params), self.force_at(Xe)
+        density = self.density if density is None else density
+        for a in range(0, len(Xe), chunk):
+            s = slice(a, min(a + chunk, len(Xe)))
+            yield (s, *self.element.residual(Xe[s], ve[s], pe[s], alpha[s], density, self.settings.viscosity,
+                                              self.symmetric, None if force is None else force[s], True))
+
     def jacobian(self, w, x=None, rho=None, density=None, params=None):
-        """``F_w`` as the constrained CSR matrix (identity on fixed dofs), ``F`` and the
-        element Jacobians."""
-        Re, Ke = self.element_jacobians(w, x, rho, params, density)
-        return self.bc.matrix(Ke), assemble_vector(self.dofs, Re, self.size), Ke
+        """``F_w`` as the constrained CSR matrix (identity on fixed dofs) and ``F``. With
+        ``keep_element_jacobians`` from the kept element evaluation; else assembled chunk by
+        chunk (the element matrices never all held) with the element residuals kept (keyed by
+        every input) for the residuals and loads at this state."""
+        if self.keep_element_jacobians:
+            Re, Ke = self.element_jacobians(w, x, rho, params, density)
+            return self.bc.matrix(Ke), assemble_vector(self.dofs, Re, self.size)
+        pattern = self.bc.pattern
+        data, Re = pattern.zeros(), None
+        for elements, Re_c, Ke_c in self.element_jacobian_chunks(w, x, rho, params, density):
+            if Re is None:
+                Re = np.empty((self.mesh.n_elements, Re_c.shape[1]), dtype=Re_c.dtype)
+            Re[elements] = Re_c
+            pattern.add(data, elements, Ke_c)
+        Re = self.kept_residuals.get(self.evaluation_key(w, x, rho, params, density), lambda: Re)
+        return pattern.matrix(data, 1.0), assemble_vector(self.dofs, Re, self.size)
 
     def shape_elements(self, w, x=None, rho=None, params=None):
         """``(R_e (E, m), dR_e/dXe (E, m, 8))`` on the mesh moved by ``x``: the element type's
@@ -333,7 +369,7 @@ class Flow:
         scale = self.residual_scale(x, density)
         history: list[float] = []
         report.residual_history.append(history)
-        J, R, _ = self.jacobian(w, x, rho, density, params)
+        J, R = self.jacobian(w, x, rho, density, params)
         for it in range(s.newton_max_iter + 1):
             r = self.bc.homogenize(R)
             norm = float(np.linalg.norm(r))
@@ -350,11 +386,12 @@ class Flow:
             dw = solver.solve(J, -r, rtol=forcing_term(history, target))
             dw[self.bc.fixed] = 0.0
             report.newton_iterations += 1
+            J = None                          # let this Jacobian go before the trial's is assembled
 
             def trial(alpha, w=w, dw=dw):
                 w_t = w + alpha * dw
                 if alpha == 1.0:                        # keep the Jacobian: next iteration's
-                    J_t, R_t, _ = self.jacobian(w_t, x, rho, density, params)
+                    J_t, R_t = self.jacobian(w_t, x, rho, density, params)
                 else:
                     J_t, R_t = None, self.residual(w_t, x, rho, density, params)
                 return float(np.linalg.norm(self.bc.homogenize(R_t))), (w_t, J_t, R_t)
@@ -364,7 +401,7 @@ class Flow:
                                      {"history": history, "density": density})
             w, J, R = found[1]
             if J is None:
-                J, R = self.jacobian(w, x, rho, density, params)[:2]
+                J, R = self.jacobian(w, x, rho, density, params)
         raise NumericalError(f"flow solve: no convergence in {s.newton_max_iter} Newton iterations",
                              {"history": history, "density": density})
 

@@ -283,9 +283,10 @@ class FluidForce:
             ve = np.einsum("eab,ea->eb", self.stress_operators(x), lam_e) * self.weight(rho, params)[:, None]
             return assemble_vector(fl.dofs, ve, fl.size)
         NN, _, _, _, psi, c = self._reaction_parts(w, x, rho, params, fl.corners(x))
-        Ke = fl.element_jacobians(w, x, rho, params)[1]
         nu = self.free * (lam_e @ self.to_corners)                               # (E, 2k)
-        ve = psi[:, None] * np.einsum("ea,eab->eb", nu, Ke[:, :self.k2, :])
+        ve = np.empty((len(nu), fl.dofs.shape[1]))
+        for e, _, Ke in fl.element_jacobian_chunks(w, x, rho, params):         # K_e by chunks
+            ve[e] = psi[e, None] * np.einsum("ea,eab->eb", nu[e], Ke[:, :self.k2, :])
         mass = np.matmul(np.swapaxes(NN, 1, 2), nu.reshape(len(nu), -1, 2)).reshape(len(nu), self.k2)
         ve[:, :self.k2] += c[:, None] * mass
         return assemble_vector(fl.dofs, ve, fl.size)

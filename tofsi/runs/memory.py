@@ -13,8 +13,9 @@ and its ``a_f``), ``E`` elements, ``b`` bytes per factor entry (12 stored +
 the factorization's working space) and ``c_kind`` bytes per unknown of the
 iterative solvers (hierarchies, Krylov bases, the blocks they copy). Every
 other command is a multiple of that (:data:`COMMAND_FACTOR`: ``optimize``
-and ``check-gradients`` keep the adjoint's blocks and the design filter beside
-a solve), except ``tofsi mesh`` (the mesh
+and ``check-gradients`` keep the adjoint's blocks beside a solve) plus, for
+those two, the design filter's ``O(E)`` (a stencil, no matrix:
+:data:`FILTER_BYTES_PER_ELEMENT`), except ``tofsi mesh`` (the mesh
 alone, :data:`MESH_BYTES_PER_ELEMENT`). Under ``mpiexec -n P`` with the
 ``petsc`` backend the factors are split across the ranks and everything else
 is replicated: per rank ``base + f (sum a_f E + b nnz_LU / P)``, and the
@@ -35,19 +36,24 @@ from tofsi.core.errors import InputError
 from tofsi.core.registry import FIELDS
 
 GB = 1024.0 ** 3
-BASE_BYTES = 0.15 * GB          # interpreter, NumPy/SciPy, the scene (measured 0.10 GB at import)
+BASE_BYTES = 0.13 * GB          # interpreter, NumPy/SciPy, the scene (measured 0.10 GB at import, 0.14 GB for
+                                # a whole solve at 800 elements; 0.15 before issue 34 made the solves leaner)
 BYTES_PER_FACTOR_ENTRY = 22.2   # 12 stored + the factorization's working space; fitted to tofsi solve
                                 # at 16 200-129 795 elements (SuperLU); the fields' a_f refitted after
                                 # the fluid kernel ran in chunks (16 200 and 64 980 elements)
 FILL = {"flow": 14.0, "flow-q1q1": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured
                                                              # 12.6-13.9 (Taylor-Hood), 12.3-14.5 (Q1/Q1) / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
-ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 3.8e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move
-                                # on the iterative path (16 200-64 980 flow elements; 5e3-1.6e5 mesh)
+ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 2.35e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move on
+                                # the iterative path (flow: 16 200 and 64 980 elements after issue 34's
+                                # GMRES(30), int32 slots, no kept element matrices, 3.8e3 before; 5e3-1.6e5 mesh)
 COMMAND_FACTOR = {"solve": 1.0, "optimize": 1.10, "check-gradients": 1.70, "move": 1.0, "tune": 1.0,
                   "study": 1.0}  # peak over the solve model (above base): optimize measured 1.06-1.08
                                  # at 16 200 elements once a design point's state is let go before
                                  # the next is solved (1.68-1.71 at 16k-130k when both were held)
+FILTER_BYTES_PER_ELEMENT = 64.0  # the design filter, a stencil (tofsi.optimization.design): Hs, b and the kernel's FFT
+                                 # held (23 B measured at 1e6 elements) and its applications' E-vectors;
+                                 # optimize and check-gradients (the matrix it replaced: (r/h)^2 entries)
 MESH_BASE_BYTES = 0.10 * GB     # tofsi mesh: the interpreter and the mesh alone
 MESH_BYTES_PER_ELEMENT = 0.65e3   # fitted to tofsi mesh at 5e3-1.6e5 elements
 
@@ -113,7 +119,8 @@ def estimate(scene, command: str = "solve", backend: str = "superlu", ranks: int
     if not iterative:
         solver_bytes = BACKEND_FACTOR.get(backend, 1.0) * BYTES_PER_FACTOR_ENTRY * sum(entries.values()) / split
     factor = COMMAND_FACTOR.get(command, 1.0)
-    peak = BASE_BYTES + factor * (per_element * grid.elements + solver_bytes)
+    design = FILTER_BYTES_PER_ELEMENT * grid.elements if command in ("optimize", "check-gradients") else 0.0
+    peak = BASE_BYTES + factor * (per_element * grid.elements + solver_bytes) + design
     return Estimate(grid.elements, unknowns, entries, peak, "iterative" if iterative else "direct", ranks)
 
 
