@@ -46,6 +46,41 @@ def test_the_inflow_ramp_carries_a_solve_the_full_load_cannot_reach():
         assert np.abs(getattr(again, f) - ref).max() <= 1e-7 * np.abs(ref).max()
 
 
+GRAY_POST = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.2"]
+
+
+def gray_post_state(follow: float):
+    """The large scene's first two-way stage (finite strain, beta 8) at 20 x 10 on a post around
+    its wall, gray at its edges after the filter and the projection: the flow moves it ~0.19 m."""
+    scene = load("beam_in_channel_optimization_large", *GRAY_POST, f"mover.follow_density={follow}")
+    problem = tofsi.Problem(scene)
+    problem.set_stage(continuation(scene, 3))
+    c = problem.model.mesh.centroids[problem.map.design]
+    state = problem.solve(np.where((np.abs(c[:, 0] - 1.0) < 0.2) & (c[:, 1] < 0.55), 1.0, 0.0))
+    return problem.model, state
+
+
+def test_the_fluid_mesh_follows_the_structure_on_the_solid_and_its_gray_boundary():
+    """At a converged two-way large-motion state, ``x = u`` to round-off on the nodes of elements
+    with rho >= 0.99 and within 1 % of the motion on those of elements with rho >= 1/2 (the
+    figure ``max_interface_gap`` is that maximum); teeth: with ``mover.follow_density = 1`` the
+    mesh leaves the gray boundary by tens of percent of the motion (the mover's forces win)."""
+    for follow, gray_bound in ((0.5, 1e-2), (1.0, None)):
+        model, state = gray_post_state(follow)
+        rho, follows = state.rho, model.motion.follows
+        gap = np.linalg.norm((state.x - state.u).reshape(-1, 2), axis=1)
+        solid = lambda r: np.intersect1d(np.unique(model.mesh.quads[rho >= r]), follows)
+        motion = np.linalg.norm(state.u.reshape(-1, 2), axis=1)[solid(0.5)].max()
+        assert motion > 0.15                                           # large: 15 % of the channel
+        assert np.sum((rho >= 0.5) & (rho < 0.99)) >= 10               # a gray boundary
+        assert model.figures(state)["max_interface_gap"] == gap[solid(0.5)].max()
+        if gray_bound is None:
+            assert gap[solid(0.5)].max() > 0.1 * motion
+            continue
+        assert gap[solid(0.99)].max() <= 1e-6 * motion
+        assert gap[solid(0.5)].max() <= gray_bound * motion
+
+
 TINY = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.25", "optimizer.max_iter=12",
         "design.stage_iterations=6"]
 

@@ -239,7 +239,7 @@ class MotionEntry(Field):
     the mesh-motion commands' prescribed structure motion)."""
 
     name, title, tables = "x", "mesh motion", ("mover",)
-    summary = ("min_skewness", "n_inverted")
+    summary = ("min_skewness", "n_inverted", "max_interface_gap")
     picture_names = ("mesh",)
 
     def active(self, scene, command="solve"):
@@ -260,12 +260,14 @@ class MotionEntry(Field):
         return MotionField(model.motion) if two_way else None
 
     def figures(self, model, state):
-        """The moved fluid mesh's quality: smallest skewness, area change range, inverted quads."""
+        """The moved fluid mesh's quality (smallest skewness, area change range, inverted quads)
+        and how far it leaves the structure on the solid (``max_interface_gap`` [m])."""
         if state.x is None:
             return {}
         q = quality.summary(model.mesh.points, state_points(model, state), model.mesh.quads)
+        gap = {} if state.u is None else {"max_interface_gap": model.motion.interface_gap(state.x, state.u, state.rho)}
         return {"min_skewness": q.min_skewness, "min_area_change": q.min_area_change,
-                "max_area_change": q.max_area_change, "n_inverted": q.n_inverted}
+                "max_area_change": q.max_area_change, "n_inverted": q.n_inverted, **gap}
 
     def point_data(self, model, state):
         if state.x is None:

@@ -87,6 +87,7 @@ class Iteration:
     min_skewness: float = float("nan")        # of the moved fluid mesh (NaN: the mesh did not move)
     min_area_change: float = float("nan")
     max_area_change: float = float("nan")
+    max_interface_gap: float = float("nan")    # max |x - u| [m] on the solid's nodes (rho >= 1/2)
     skewness_constraint: float = float("nan")  # g of design.min_skewness (NaN: not constrained here)
     fallbacks: int = 0                         # failed trial designs so far in the run
     load_steps: int = 0                        # steps of the inflow ramp this evaluation took (0: none)
@@ -101,13 +102,14 @@ class TrialFailed(Exception):
         self.error = error
 
 
-def mesh_quality(mesh, state) -> tuple[float, float, float]:
-    """``(min skewness, min area change, max area change)`` of the fluid mesh a state's flow
-    was solved on; NaN where the mesh did not move (one-way)."""
+def mesh_quality(model, state) -> tuple[float, float, float, float]:
+    """``(min skewness, min area change, max area change, max interface gap [m])`` of the fluid
+    mesh a state's flow was solved on; NaN where the mesh did not move (one-way)."""
     if state.x is None:
-        return (float("nan"),) * 3
+        return (float("nan"),) * 4
+    mesh = model.mesh
     q = quality.summary(mesh.points, mesh.points + state.mesh_displacement, mesh.quads)
-    return q.min_skewness, q.min_area_change, q.max_area_change
+    return q.min_skewness, q.min_area_change, q.max_area_change, model.motion.interface_gap(state.x, state.u, state.rho)
 
 
 def non_discreteness(rho: np.ndarray) -> float:
@@ -169,7 +171,7 @@ class Optimizer:
         state = p.solve(gamma)
         ramp = state.reports.get("load_ramp", {})
         return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
-                "volume": p.volume_fraction.value(p.model, state), "quality": mesh_quality(p.model.mesh, state),
+                "volume": p.volume_fraction.value(p.model, state), "quality": mesh_quality(p.model, state),
                 "ramp": (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))),
                 "state": state.data()}             # the record: fields, no factorizations held
 

@@ -188,6 +188,7 @@ class MoverSettings:
     params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     layers_from: str = "density"
     band: BandSettings = dataclasses.field(default_factory=BandSettings)
+    follow_density: float = 0.5
 
     @property
     def options(self):
@@ -227,20 +228,21 @@ def _build_mover(raw, raw_scene) -> MoverSettings:
     layers_from = coerce(str, raw.pop("layers_from", "density"), "mover.layers_from",
                          dict(choices=LAYERS_FROM))
     band = build(BandSettings, raw.pop("band", {}), "mover.band")
+    follow = coerce(float, raw.pop("follow_density", 0.5), "mover.follow_density", dict(gt=0, le=1))
     for key, value in raw.items():
         if key not in names:
             raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, layers_from, "
-                             "band, or a parameter table of one of " + ", ".join(map(repr, names)))
+                             "band, follow_density, or a parameter table of one of " + ", ".join(map(repr, names)))
     factors = coerce(tuple[float, ...], layers, "mover.layers",
                      dict(gt=0, le=MAX_STIFFENING, doc="stiffening factor per element layer"))
     params = {n: build(movers.mover_class(n).Params, raw.get(n, {}), f"mover.{n}") for n in names}
     return MoverSettings(name=mover_name(raw_scene), layers=factors, params=MappingProxyType(params),
-                         layers_from=layers_from, band=band)
+                         layers_from=layers_from, band=band, follow_density=follow)
 
 
 def _write_mover(mover: MoverSettings) -> dict:
     table = {"name": mover.name, "layers": list(mover.layers), "layers_from": mover.layers_from,
-             "band": plain(mover.band)}
+             "follow_density": mover.follow_density, "band": plain(mover.band)}
     table.update({name: plain(params) for name, params in mover.params.items()})
     return table
 
@@ -252,7 +254,10 @@ def _mover_rows() -> list:
              "stiffening factor of each element layer counted from the interface"),
             ("mover.layers_from", "density", "one of 'density', 'solid'",
              "design scenes: count the layers from the evolving design (smooth dilation of the "
-             "densities, gray elements partly stiffened, differentiable) or from the fixed solid only")]
+             "densities, gray elements partly stiffened, differentiable) or from the fixed solid only"),
+            ("mover.follow_density", 0.5, "0 < value <= 1",
+             "design scenes: a mesh node moves with the structure exactly (x = u) where one of its "
+             "elements has at least this density; below, the mover takes over smoothly towards rho = 0")]
     rows += documentation(BandSettings, "mover.band")
     for name in movers.available():
         rows += documentation(movers.mover_class(name).Params, f"mover.{name}")
