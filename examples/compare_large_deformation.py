@@ -52,13 +52,13 @@ from pathlib import Path
 import numpy as np
 
 import tofsi
-from tofsi.blocks import State
-from tofsi.coupled import continuation
-from tofsi.errors import NumericalError
-from tofsi.optimize import Optimizer
-from tofsi.output import write_json, write_text
-from tofsi.resume import read_checkpoint
-from tofsi.tuning import tune
+from tofsi.core.blocks import State
+from tofsi.coupling.coupled import continuation
+from tofsi.core.errors import NumericalError
+from tofsi.optimization.optimize import Optimizer
+from tofsi.runs.output import write_json, write_text
+from tofsi.optimization.resume import read_checkpoint
+from tofsi.optimization.tuning import tune
 
 SCENE = Path(__file__).parent / "scenes" / "beam_in_channel_optimization_large.toml"
 SMALL = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.2", "optimizer.max_iter=8",
@@ -221,7 +221,7 @@ def pictures(rows: list[dict], path: Path) -> None:
     """Every finished run's final density, side by side (movers across, the other choices down)."""
     import matplotlib.pyplot as plt
 
-    from tofsi.plotting import save
+    from tofsi.runs.plotting import save
     scene = tofsi.load_scene(SCENE, base())
     problem = tofsi.Problem(scene)
     problem.set_stage(continuation(scene, scene.design.n_stages - 1))
@@ -261,12 +261,14 @@ def main(output: Path, jobs: int = 1, movers=MOVERS, stiffening=tuple(STIFFENING
     if mesh_size is not None:
         MESH[:] = [f"mesh.h_min={mesh_size:g}", f"mesh.h_max={mesh_size:g}"]
         print(f"the study's mesh: uniform, element size {mesh_size:g} m", flush=True)
-    print("reference run: yeoh, density-grown layers, no constraint", flush=True)
-    reference_run = kept_or_run(output / "reference" / "row.json",
-                                lambda: optimize(["mover.name=yeoh"], output / "reference"), redo)
-    motion = reference_run["max_solid_displacement"] if reference_run["finished"] else 0.1
-    layers = ({m: kept_or_run(output / f"tuned-{m}.json", lambda m=m: tuned_layers(m, motion), redo) for m in movers}
-              if "tuned" in stiffening else {})
+    reference_run, layers = {}, {}
+    if "tuned" in stiffening:                       # the motion the tuning aims at
+        print("reference run (for the tuning's motion): yeoh, density-grown layers, no constraint", flush=True)
+        reference_run = kept_or_run(output / "reference" / "row.json",
+                                    lambda: optimize(["mover.name=yeoh"], output / "reference"), redo)
+        motion = reference_run["max_solid_displacement"] if reference_run["finished"] else 0.1
+        layers = {m: kept_or_run(output / f"tuned-{m}.json", lambda m=m: tuned_layers(m, motion), redo)
+                  for m in movers}
     for m, f in layers.items():
         print(f"tuned layers for {m}: {[round(v, 3) for v in f]}", flush=True)
     jobs_list = [(m, s, c, layers.get(m), output, list(MESH), redo)

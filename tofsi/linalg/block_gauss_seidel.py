@@ -30,11 +30,12 @@ Jacobians (Newton iterates) until it goes stale.
 from __future__ import annotations
 
 import logging
+from itertools import pairwise
 
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.linalg.direct import DirectSolver
 from tofsi.linalg.recycling import GMRES_RESTART, flexible_gmres
 
@@ -64,7 +65,7 @@ class BlockGaussSeidel:
             raise ValueError(f"block sizes {list(sizes)} do not make up the {A.shape} matrix")
         orderings = orderings or [None] * len(sizes)
         self.diagonal, self.lower, self.lower_t = [], [], []
-        for i, (a, b) in enumerate(zip(self.starts[:-1], self.starts[1:])):
+        for i, (a, b) in enumerate(pairwise(self.starts)):
             rows = A[a:b]
             self.diagonal.append(self.direct(rows[:, a:b], perm=orderings[i]))
             self.lower.append(rows[:, :a].tocsr())                     # A_ij, j < i
@@ -76,7 +77,7 @@ class BlockGaussSeidel:
     def _sweep(self, r: np.ndarray) -> np.ndarray:
         """``M^{-1} r``: forward block substitution."""
         z = np.empty_like(r)
-        for i, (a, b) in enumerate(zip(self.starts[:-1], self.starts[1:])):
+        for i, (a, b) in enumerate(pairwise(self.starts)):
             rhs = r[a:b] - self.lower[i] @ z[:a] if a else r[a:b]
             z[a:b] = self._solve[i](rhs)
         return z
