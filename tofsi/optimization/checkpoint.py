@@ -55,6 +55,13 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
     atomic_write(path, write)
 
 
+def quality_record(values) -> tuple:
+    """An evaluation's mesh figures (see :func:`tofsi.optimization.optimize.mesh_quality`), NaN for
+    those a checkpoint of an earlier version did not hold."""
+    values = [float(q) for q in values]
+    return tuple(values + [np.nan] * (4 - len(values)))
+
+
 def record(stage: Stage | None) -> dict | None:
     """A stage record (:class:`tofsi.core.blocks.Stage`) as JSON: its numbers and its structure,
     one flat table (None stays None)."""
@@ -89,7 +96,7 @@ def read_stage(path, problem) -> tuple[dict, list[dict], State]:
         f, volume = data[f"e{k}_f"]
         replay.append({"gamma": gamma, "df": data[f"e{k}_df"], "g": data[f"e{k}_g"], "dg": data[f"e{k}_dg"],
                        "f": float(f), "volume": float(volume),
-                       "quality": tuple(float(q) for q in data.get(f"e{k}_quality", [np.nan] * 3)),
+                       "quality": quality_record(data.get(f"e{k}_quality", [])),
                        "ramp": tuple(int(r) for r in data.get(f"e{k}_ramp", [0, 0]))})
     state = State(rho=data["rho"], converged=True,
                   fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})

@@ -83,13 +83,14 @@ class TrialFailed(Exception):
         self.error = error
 
 
-def mesh_quality(mesh, state) -> tuple[float, float, float]:
-    """``(min skewness, min area change, max area change)`` of the fluid mesh a state's flow
-    was solved on; NaN where the mesh did not move (one-way)."""
+def mesh_quality(model, state) -> tuple[float, float, float, float]:
+    """``(min skewness, min area change, max area change, max interface gap [m])`` of the fluid
+    mesh a state's flow was solved on; NaN where the mesh did not move (one-way)."""
     if state.x is None:
-        return (float("nan"),) * 3
+        return (float("nan"),) * 4
+    mesh = model.mesh
     q = quality.summary(mesh.points, mesh.points + state.mesh_displacement, mesh.quads)
-    return q.min_skewness, q.min_area_change, q.max_area_change
+    return q.min_skewness, q.min_area_change, q.max_area_change, model.motion.interface_gap(state.x, state.u, state.rho)
 
 
 def non_discreteness(rho: np.ndarray) -> float:
@@ -155,7 +156,7 @@ class Optimizer:
             return {"gamma": gamma.copy(), "failed": True, "error": str(err), "diagnostic": err.diagnostic}
         ramp = state.reports.get("load_ramp", {})
         return {"gamma": gamma.copy(), "f": f, "df": df, "g": g, "dg": dg,
-                "volume": volume, "quality": mesh_quality(p.model.mesh, state),
+                "volume": volume, "quality": mesh_quality(p.model, state),
                 "ramp": (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))),
                 "state": state.data()}             # the record: fields, no factorizations held
 
