@@ -64,7 +64,8 @@ def optimize_scene(scene_file: Path, output: Path, overrides=(), overwrite: bool
 
     def report(it):                        # one line per ten design iterations
         if it.iteration % 10 == 0 or it.coupling == "two-way":
-            quality = "" if math.isnan(it.min_skewness) else f"  min skewness {it.min_skewness:.3f}"
+            quality = "" if math.isnan(it.min_skewness) else (f"  min skewness {it.min_skewness:.3f}"
+                                                               f"  interface gap {it.max_interface_gap:.2g} m")
             print(f"  iteration {it.iteration:4d}  {it.coupling:7s}  compliance {it.objective:.5g}"
                   f"  volume {it.volume:.4f}{quality}  {it.time_s:6.1f} s")
 

@@ -9,7 +9,12 @@ channel boundary) the mesh-motion equation becomes
 displacement and ``c_i`` a stiffness scale (the mean diagonal of the mover's
 reference stiffness at the node) that keeps both parts of comparable size.
 ``s = 0`` everywhere is the explicit-interface form; ``s = 1`` on the solid's
-nodes makes them follow the structure exactly. Per dof this is a row weight
+nodes makes them follow the structure exactly: their row is ``c_i (x_i - u_i)``,
+linear, so ``x_i = u_i`` to round-off whatever the mover's forces. ``s`` must be
+exactly 1 for that, not near it: with ``s = 1 - d`` the node settles where
+``d R_i ~ c_i (x_i - u_i)``, and a stiffened nonlinear mover's ``|R_i| / c_i`` is
+of the order of 100 m at a large motion (the coupled model's indicator is 1 from
+a density threshold on: :mod:`tofsi.physics.indicators`). Per dof this is a row weight
 ``W = 1 - s`` on the mover's equations plus a diagonal ``S_c = s c``. This
 module is the only place that writes that algebra down: the blended residual,
 its Jacobian and its partial derivatives.

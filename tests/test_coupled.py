@@ -85,16 +85,29 @@ def test_mesh_motion_blocks_match_central_differences(name, extra, design):
             assert rho_bar @ dr == pytest.approx(fd, rel=1e-6)
 
 
-def test_solid_indicator_is_one_next_to_solid_and_smooth():
+def test_solid_indicator_is_exactly_one_from_the_threshold_on_and_smooth():
+    """Hand values of ``h(rho) = 10 t^3 - 15 t^4 + 6 t^5``, ``t = rho / r``: ``h(0.3) = 0.216 * 3.16``
+    at threshold 1/2, ``h(0.2) = 0.008 * 7.24`` and ``h(0.3) = 0.027 * 6.04`` at threshold 1; a node
+    of an element at or above the threshold has ``s = 1`` exactly; the derivative against central
+    differences (also straddling the threshold and zero), and ``h`` twice differentiable at the
+    threshold (the first-order model's remainder falls as eps^3 there)."""
     quads = np.array([[0, 1, 4, 3], [1, 2, 5, 4]])
-    s, ds = solid_indicator(np.array([1.0, 0.3]), quads, 6)
-    np.testing.assert_allclose(s, [1, 1, 0.3, 1, 1, 0.3])
+    s, _ = solid_indicator(np.array([0.5, 0.3]), quads, 6)
+    assert s[[0, 1, 3, 4]].tolist() == [1.0] * 4                   # exactly, not nearly
+    np.testing.assert_allclose(s[[2, 5]], 0.216 * 3.16, rtol=1e-14)
+    s, _ = solid_indicator(np.array([0.2, 0.3]), quads, 6, threshold=1.0)
+    a, b = 0.008 * 7.24, 0.027 * 6.04
+    np.testing.assert_allclose(s, [a, 1 - (1 - a) * (1 - b), b] * 2, rtol=1e-13)
     rng = np.random.default_rng(2)
-    rho = rng.uniform(0, 1, 2)
-    d = rng.normal(size=2)
     h = 1e-7
-    fd = (solid_indicator(rho + h * d, quads, 6)[0] - solid_indicator(rho - h * d, quads, 6)[0]) / (2 * h)
-    np.testing.assert_allclose(solid_indicator(rho, quads, 6)[1] @ d, fd, rtol=1e-7)
+    for rho in (rng.uniform(0, 1, 2), np.array([0.45, 0.55]), np.array([0.0, 0.02])):
+        d = rng.normal(size=2)
+        fd = (solid_indicator(rho + h * d, quads, 6)[0] - solid_indicator(rho - h * d, quads, 6)[0]) / (2 * h)
+        np.testing.assert_allclose(solid_indicator(rho, quads, 6)[1] @ d, fd, rtol=1e-7, atol=1e-12)
+    rho, d = np.array([0.5, 0.3]), np.array([1.0, 0.0])             # at the threshold itself
+    s0, ds = solid_indicator(rho, quads, 6)
+    rem = [np.abs(solid_indicator(rho - e * d, quads, 6)[0] - s0 + e * (ds @ d)).max() for e in (1e-2, 5e-3)]
+    assert np.log2(rem[0] / rem[1]) > 2.9
 
 
 def test_a_mesh_motion_study_never_assembles_a_fluid_matrix_even_when_the_scene_has_a_flow(monkeypatch):

@@ -101,6 +101,26 @@ def test_jacobian_stiffening_makes_small_elements_relatively_stiffer():
         assert K[1, 0, 0] / K[0, 0, 0] == pytest.approx(ratio, rel=1e-12)
 
 
+def test_jacobian_stiffening_does_nothing_on_a_uniform_mesh_in_one_increment_and_acts_in_increments():
+    """On a uniform mesh every element has the same ``J``, so ``J^(-chi)`` is one factor for all
+    and, with prescribed motion only, the solution of one increment is the same for every chi
+    (to the solve's round-off); in increments on the updated mesh the current ``J_e`` differ and
+    chi changes the mesh (the large scene's uniform mesh: docs/optimization.md section 4)."""
+    s = np.linspace(0.0, 1.0, 11)
+    mesh = StructuredQuadMesh(s, s)
+    boundary = np.unique(np.concatenate([mesh.side_nodes(side) for side in ("left", "right", "bottom", "top")]))
+    inner = np.flatnonzero((np.abs(mesh.centroids - 0.5) < 0.15).all(axis=1))
+    fixed = np.union1d(boundary, np.unique(mesh.quads[inner]))
+    problem = MotionProblem.from_mesh(mesh, np.setdiff1d(np.arange(mesh.n_elements), inner), fixed)
+    u = np.zeros((mesh.n_nodes, 2))
+    core = np.unique(mesh.quads[inner])
+    u[core] = rotation(mesh.points[core], 25.0) + [0.08, 0.0]
+    move = lambda chi, n: movers.create("linear", chi=chi, increments=n).move(problem, u).displacement
+    one = [move(chi, 1) for chi in (0.0, 1.0, 2.0)]
+    assert np.abs(one[1] - one[0]).max() <= 1e-12 and np.abs(one[2] - one[0]).max() <= 1e-12
+    assert np.abs(move(1.0, 8) - move(0.0, 8)).max() > 1e-3 * np.abs(u).max()
+
+
 @pytest.mark.parametrize("mode", ["translation", "rotation", "bending"])
 def test_yeoh_keeps_every_foil_mesh_valid(mode):
     scene = load("foil_in_channel", f"deformation.mode={mode}", "mover.name=yeoh")

@@ -113,7 +113,8 @@ def optimize(problem, scene, args, ctx) -> dict:
 
     def line(it):
         if not ctx.quiet:
-            notes = [f"min skewness {it.min_skewness:.3f}"] if it.min_skewness == it.min_skewness else []
+            notes = ([f"min skewness {it.min_skewness:.3f}", f"interface gap {it.max_interface_gap:.2g} m"]
+                     if it.min_skewness == it.min_skewness else [])
             if it.load_steps:
                 notes.append(f"inflow ramp {it.load_steps} steps, {it.load_cutbacks} cutbacks")
             if it.fallbacks:

@@ -34,6 +34,7 @@ from tofsi.core.errors import InputError, NumericalError
 from tofsi.fields.flow import fluid_force
 from tofsi.linalg import LinearAlgebra
 from tofsi.coupling.load_ramp import ramped
+from tofsi.coupling.probes import probe_figures
 from tofsi.mesh.structured import DESIGN, SOLID
 from tofsi.core.registry import FIELDS
 
@@ -142,8 +143,8 @@ class CoupledModel:
         full inflow, the inflow is ramped from rest (``coupled.load_ramp``,
         :mod:`tofsi.coupling.load_ramp`; one-way, the flow continues in its Reynolds number itself)."""
         t0 = time.perf_counter()
-        if self.flow is None:
-            raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow")
+        if self.flow is None and self.structure is None:
+            raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow and no structure")
         stage = self.stage if stage is None else stage
         c = self.scene.coupled
         with self.linear_algebra.blas():
@@ -198,8 +199,10 @@ class CoupledModel:
     # ---- figures --------------------------------------------------------------------------
     def figures(self, state: State) -> dict:
         """Every active field's figures of a state (flow: pressure drop, dissipation, drag and
-        lift; structure: compliance, largest displacement; moved mesh: its quality)."""
+        lift; structure: compliance, largest displacement; moved mesh: its quality) and the
+        scene's probes (:mod:`tofsi.probes`)."""
         out = {}
         for field in self.fields:
             out.update(field.figures(self, state))
+        out.update(probe_figures(self, state))
         return out

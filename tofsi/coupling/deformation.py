@@ -28,8 +28,9 @@ import numpy as np
 
 from tofsi.coupling.coupled import CoupledModel
 from tofsi.core.errors import InputError
+from tofsi.mesh.channel import named_solids
 from tofsi.mesh.structured import SOLID, StructuredQuadMesh
-from tofsi.physics.structure import Structure
+from tofsi.physics.structure import Structure, held_nodes
 from tofsi.scene.tables import Effects
 from tofsi.mesh.quality import signed_area
 
@@ -90,17 +91,19 @@ def scaled_to(u: np.ndarray, tip_displacement: float, mode: str) -> np.ndarray:
     return u * (tip_displacement / peak)
 
 
-def cantilever_under_pressure(mesh: StructuredQuadMesh, structure, tip_displacement: float) -> np.ndarray:
-    """Displacement ``(n, 2)`` of the solid under upstream pressure, scaled to the tip value."""
+def cantilever_under_pressure(mesh: StructuredQuadMesh, structure, tip_displacement: float,
+                              solids=None) -> np.ndarray:
+    """Displacement ``(n, 2)`` of the solid under upstream pressure, scaled to the tip value
+    (``solids``: the named solids' elements, which ``structure.clamped`` may name)."""
     solid_nodes = mesh.nodes_of(SOLID)
-    clamped = np.concatenate([mesh.side_nodes(s) for s in structure.clamped])
+    clamped = held_nodes(mesh, structure.clamped, solids)
     if np.intersect1d(clamped, solid_nodes).size == 0:
         raise InputError("structure.clamped", list(structure.clamped),
-                         "the solid touches none of these channel sides; it cannot be clamped")
+                         "the solid touches none of these channel sides or solids; it cannot be clamped")
     load = upstream_pressure_load(mesh)
     if not np.any(load):
         raise InputError("deformation.mode", "pressure", "the solid has no upstream face to load")
-    block = Structure(mesh, structure)
+    block = Structure(mesh, structure, solids=solids)
     rho = (mesh.region == SOLID).astype(float)
     u = block.factorize(rho).solve(block.bc.homogenize(load))
     return scaled_to(solid_part(mesh, u), tip_displacement, "pressure")
@@ -133,7 +136,8 @@ def prescribed_motion(mesh: StructuredQuadMesh, scene) -> np.ndarray:
     elif mode == "bending":
         u[solid_nodes] = u_bending(X, np.array([X.min(axis=0), X.max(axis=0)]), deformation.bending_tip)
     elif mode == "pressure":
-        u = cantilever_under_pressure(mesh, structure, deformation.tip_displacement)
+        u = cantilever_under_pressure(mesh, structure, deformation.tip_displacement,
+                                      named_solids(scene.geometry, mesh))
     elif mode == "fsi":
         u = structure_under_flow(mesh, scene)
     else:

@@ -66,6 +66,7 @@ class MoverSettings:
     params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     layers_from: str = "density"
     band: BandSettings = dataclasses.field(default_factory=BandSettings)
+    follow_density: float = 0.5
 
     @property
     def options(self):
@@ -85,10 +86,11 @@ def build_mover(raw, raw_scene) -> MoverSettings:
     layers_from = coerce(str, raw.pop("layers_from", "density"), "mover.layers_from",
                          dict(choices=LAYERS_FROM))
     band = build(BandSettings, raw.pop("band", {}), "mover.band")
+    follow = coerce(float, raw.pop("follow_density", 0.5), "mover.follow_density", dict(gt=0, le=1))
     for key, value in raw.items():
         if key not in names:
             raise InputError(f"mover.{key}", value, "unknown key; allowed: name, layers, layers_from, "
-                             "band, or a parameter table of one of " + ", ".join(map(repr, names)))
+                             "band, follow_density, or a parameter table of one of " + ", ".join(map(repr, names)))
     factors = coerce(tuple[float, ...], layers, "mover.layers",
                      dict(gt=0, le=MAX_STIFFENING, doc="stiffening factor per element layer"))
     selected = mover_name(raw_scene)
@@ -97,12 +99,12 @@ def build_mover(raw, raw_scene) -> MoverSettings:
         classes[name] = movers.mover_class(name)             # the error of a plugin the scene names
     params = {n: build(cls.Params, raw.get(n, {}), f"mover.{n}") for n, cls in sorted(classes.items())}
     return MoverSettings(name=selected, layers=factors, params=MappingProxyType(params),
-                         layers_from=layers_from, band=band)
+                         layers_from=layers_from, band=band, follow_density=follow)
 
 
 def write_mover(mover: MoverSettings) -> dict:
     table = {"name": mover.name, "layers": list(mover.layers), "layers_from": mover.layers_from,
-             "band": plain(mover.band)}
+             "follow_density": mover.follow_density, "band": plain(mover.band)}
     table.update({name: plain(params) for name, params in mover.params.items()})
     return table
 
@@ -115,7 +117,10 @@ def mover_rows(builtin: bool = False) -> list:
              "stiffening factor of each element layer counted from the interface"),
             ("mover.layers_from", "density", "one of 'density', 'solid'",
              "design scenes: count the layers from the evolving design (smooth dilation of the "
-             "densities, gray elements partly stiffened, differentiable) or from the fixed solid only")]
+             "densities, gray elements partly stiffened, differentiable) or from the fixed solid only"),
+            ("mover.follow_density", 0.5, "0 < value <= 1",
+             "design scenes: a mesh node moves with the structure exactly (x = u) where one of its "
+             "elements has at least this density; below, the mover takes over smoothly towards rho = 0")]
     rows += documentation(BandSettings, "mover.band")
     for name in sorted(names):
         rows += documentation(movers.mover_class(name).Params, f"mover.{name}", builtin)
@@ -233,7 +238,7 @@ class MotionEntry(Field):
     the mesh-motion commands' prescribed structure motion)."""
 
     name, title, tables = "x", "mesh motion", (MOVER_TABLE,)
-    summary = ("min_skewness", "n_inverted")
+    summary = ("min_skewness", "n_inverted", "max_interface_gap")
     picture_names = ("mesh",)
 
     def active(self, scene, command="solve"):
@@ -255,12 +260,14 @@ class MotionEntry(Field):
         return MotionBlock(model.motion) if stage.coupling == "two-way" else None
 
     def figures(self, model, state):
-        """The moved fluid mesh's quality: smallest skewness, area change range, inverted quads."""
+        """The moved fluid mesh's quality (smallest skewness, area change range, inverted quads)
+        and how far it leaves the structure on the solid (``max_interface_gap`` [m])."""
         if state.x is None:
             return {}
         q = quality.summary(model.mesh.points, state_points(model, state), model.mesh.quads)
+        gap = {} if state.u is None else {"max_interface_gap": model.motion.interface_gap(state.x, state.u, state.rho)}
         return {"min_skewness": q.min_skewness, "min_area_change": q.min_area_change,
-                "max_area_change": q.max_area_change, "n_inverted": q.n_inverted}
+                "max_area_change": q.max_area_change, "n_inverted": q.n_inverted, **gap}
 
     def point_data(self, model, state):
         if state.x is None:

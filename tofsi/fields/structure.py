@@ -1,8 +1,9 @@
 """The structure ``u``: its settings (``[structure]``), its block and its :class:`~tofsi.fields.base.Field` entry.
 
-Plane-strain elasticity with SIMP, small strain or neo-Hookean finite strain,
-loaded by the fluid (:mod:`tofsi.physics.structure`). The block's residual is
-``S``, its inputs the flow ``w`` (and the mesh motion ``x`` when two-way); its
+Plane-strain elasticity with SIMP, small strain or finite strain (neo-Hookean,
+Saint Venant-Kirchhoff), loaded by the fluid and the solid's weight
+(:mod:`tofsi.physics.structure`). The block's residual is ``S``, its inputs the
+flow ``w`` (none when its weight alone loads it; and the mesh motion ``x`` when two-way); its
 linearization is the LU of ``K_s(rho)`` at small strain, the tangent and the
 Newton's recycled solver at finite strain. Prescribed displacements are
 constants, so the matrix eliminates the Dirichlet columns.
@@ -20,6 +21,7 @@ from tofsi.core.config import option
 from tofsi.core.errors import InputError
 from tofsi.core.registry import FIELDS, MATERIALS
 from tofsi.fields.base import MOTION_ONLY, EliminatedLinearization, Field, Memory, Picture, moved_mesh, on_q2_nodes
+from tofsi.mesh.channel import named_solids
 from tofsi.mesh.structured import SIDES
 from tofsi.scene.tables import SceneTable
 
@@ -35,8 +37,10 @@ class StructureSettings:
     youngs_modulus: float = option(1e5, gt=0, doc="Young's modulus of solid E0 [Pa]")
     poisson_ratio: float = option(0.3, gt=-1.0, lt=0.5, doc="Poisson's ratio")
     e_min_ratio: float = option(1e-9, gt=0, lt=1, doc="Emin / E0 of void (fluid) elements")
-    clamped: tuple[str, ...] = option(("bottom",), choices=SIDES,
-                                      doc="channel sides where the structure is clamped (at least one)")
+    clamped: tuple[str, ...] = option(("bottom",), doc="where the structure is clamped (at least one): channel "
+                                                       "sides (left, right, bottom, top) and named solids "
+                                                       "(geometry.solid_names, geometry.circle_names), whose "
+                                                       "every node is held")
     load: str = option("reaction", choices=("reaction", "stress-divergence", "pressure"),
                        doc="the fluid's force on the solid: reaction, the momentum-consistent "
                            "reaction of the fluid residual (its resultant tends to the no-slip "
@@ -48,24 +52,31 @@ class StructureSettings:
                                   doc="weight rho^k of the solid phase in the fluid load (1: Lundgaard "
                                       "et al.; the SIMP exponent keeps gray elements' displacement "
                                       "bounded)")
+    density: float = option(0.0, ge=0, doc="density of the solid rho_s [kg/m^3]: with structure.gravity its "
+                            "weight, a dead load on the solid phase weighted like the fluid load (rho^k)")
+    gravity: tuple[float, ...] = option((0.0, 0.0), length=2,
+                                        doc="gravitational acceleration [gx, gy] [m/s^2] acting on the solid "
+                                            "(e.g. [0, -9.81]); [0, 0]: no weight")
     model: str = option("linear", choices=MATERIALS,
                         doc="the material, an entry of the materials registry (tofsi.physics.materials) -- "
                             "linear: small-strain elasticity; neo-hookean: compressible neo-Hookean at "
                             "finite strain (plane strain, total Lagrangian), solved by Newton with load "
-                            "steps; the fluid load acts on the moved configuration")
+                            "steps; saint-venant-kirchhoff: the same with W = lam/2 (tr E)^2 + mu E:E in "
+                            "the Green-Lagrange strain E (Turek & Hron's solid); at finite strain the "
+                            "fluid load acts on the moved configuration")
     interpolation: str = option("energy", choices=("energy", "simp"),
-                                doc="neo-hookean: nearly void elements -- energy: Wang et al. 2014's "
+                                doc="finite strain: nearly void elements -- energy: Wang et al. 2014's "
                                     "blend of the nonlinear and the linear strain energy by density "
                                     "(void elements linear, so they cannot invert or stall Newton); "
                                     "simp: every element neo-Hookean")
     energy_threshold: float = option(0.01, gt=0, lt=1,
-                                     doc="neo-hookean, energy: density rho0 where the blend g(rho) turns "
+                                     doc="finite strain, energy: density rho0 where the blend g(rho) turns "
                                          "from linear (below) to nonlinear (above)")
-    energy_sharpness: float = option(500.0, gt=0, le=1e4, doc="neo-hookean, energy: steepness beta of g(rho)")
-    newton_tol: float = option(1e-10, gt=0, lt=1, doc="neo-hookean: Newton tolerance, the norm of S on "
+    energy_sharpness: float = option(500.0, gt=0, le=1e4, doc="finite strain, energy: steepness beta of g(rho)")
+    newton_tol: float = option(1e-10, gt=0, lt=1, doc="finite strain: Newton tolerance, the norm of S on "
                                                       "the free dofs relative to the load's")
-    max_newton: int = option(25, ge=1, le=1000, doc="neo-hookean: Newton iterations per load step")
-    max_cutbacks: int = option(20, ge=0, le=1000, doc="neo-hookean: halvings of the load step before failing")
+    max_newton: int = option(25, ge=1, le=1000, doc="finite strain: Newton iterations per load step")
+    max_cutbacks: int = option(20, ge=0, le=1000, doc="finite strain: halvings of the load step before failing")
 
     def __post_init__(self):
         if not self.clamped:
@@ -74,7 +85,18 @@ class StructureSettings:
 
 
 
-STRUCTURE_TABLE = SceneTable("structure", StructureSettings)
+def check_clamped(scene) -> None:
+    """``structure.clamped`` names channel sides and named solids only."""
+    geometry = scene.geometry
+    names = set(geometry.solid_names) | set(geometry.circle_names)
+    for i, name in enumerate(scene.structure.clamped):
+        if name not in SIDES and name not in names:
+            raise InputError(f"structure.clamped[{i}]", name, "allowed: a channel side (" + ", ".join(SIDES)
+                             + ") or a named solid (" + (", ".join(sorted(names)) or "none named: "
+                             "geometry.solid_names, geometry.circle_names") + ")")
+
+
+STRUCTURE_TABLE = SceneTable("structure", StructureSettings, check=check_clamped)
 
 
 # ---- the block -------------------------------------------------------------------------------
@@ -119,8 +141,8 @@ class StructureLinearization(EliminatedLinearization):
         return self.solver.solve_transpose(self.matrix, b)
 
     def coupling(self, other):
-        st, w = self.st, self.fields["w"]
-        if other == "w":
+        st, w = self.st, self.fields.get("w")
+        if other == "w" and "w" in self.block.inputs:
             return self.kept("S_w", lambda: st.bc.free_rows(st.fluid_partial(w, self.X, self.rho, self.params)))
         if other == "x" and "x" in self.block.inputs:
             return self.kept("S_x", lambda: st.bc.free_rows(st.shape_partial(w, self.X, self.rho, self.params)))
@@ -128,12 +150,14 @@ class StructureLinearization(EliminatedLinearization):
 
     def density(self):
         return self.kept("S_rho", lambda: self.st.bc.free_rows(self.st.density_partial(
-            self.value, self.fields["w"], self.X, self.rho, self.params, self.block.material)))
+            self.value, self.fields.get("w"), self.X, self.rho, self.params, self.block.material)))
 
     def transpose_partials(self, lam):
         lam = self.block.homogenize(lam)
-        st, w = self.st, self.fields["w"]
-        bars = {"w": st.fluid_partial_transpose(lam, w, self.X, self.rho, self.params)}
+        st, w = self.st, self.fields.get("w")
+        bars = {}
+        if "w" in self.block.inputs:
+            bars["w"] = st.fluid_partial_transpose(lam, w, self.X, self.rho, self.params)
         if "x" in self.block.inputs:
             bars["x"] = self.coupling("x").T @ lam
         vectors = st.density_vectors(self.value, w, self.X, self.rho, self.params, self.block.material)
@@ -142,15 +166,15 @@ class StructureLinearization(EliminatedLinearization):
 
 class StructureBlock(FieldBlock):
     """The structure's displacement ``u`` of one material: SIMP plane-strain elasticity loaded by
-    the flow (a nonlinear material solved by Newton, whose report is the state's ``structure``
-    report)."""
+    the flow and its weight, or by its weight alone (no flow: no input); a nonlinear material
+    solved by Newton, whose report is the state's ``structure`` report."""
 
     name, symbol, report_name = "u", "S", "structure"
 
     def __init__(self, structure: Structure, material, moving_mesh: bool = False):
         self.structure, self.material = structure, material
         self.size = structure.size
-        self.inputs = ("w", "x") if moving_mesh else ("w",)
+        self.inputs = (("w",) if structure.force is not None else ()) + (("x",) if moving_mesh else ())
         self.slow_couplings = ("x",) if moving_mesh else ()     # S_x: the load's shape derivative
 
     @property
@@ -162,7 +186,8 @@ class StructureBlock(FieldBlock):
 
     def residual(self, fields, rho, params):
         st, u = self.structure, fields["u"]
-        r = st.bc.homogenize(st.residual(u, fields["w"], moved_mesh(fields, self.inputs), rho, params, self.material))
+        r = st.bc.homogenize(st.residual(u, fields.get("w"), moved_mesh(fields, self.inputs), rho, params,
+                                         self.material))
         r[self.fixed] = u[self.fixed]
         return r
 
@@ -176,12 +201,12 @@ class StructureBlock(FieldBlock):
         st, simp = self.structure, self.structure.simp(params)
         earlier = previous.solver if isinstance(previous, StructureLinearization) else None
         solver = self.material.solver(rho, simp, earlier)
-        load = st.load(fields["w"], moved_mesh(fields, self.inputs), rho, params)
+        load = st.load(fields.get("w"), moved_mesh(fields, self.inputs), rho, params)
         u, report = self.material.solve(load, rho, simp, guess=guess, solver=solver)
         return u, StructureLinearization(self, {**fields, "u": u}, rho, params, solver), report
 
     def residual_scale(self, fields, rho, params, lin):
-        load = self.structure.load(fields["w"], moved_mesh(fields, self.inputs), rho, params)
+        load = self.structure.load(fields.get("w"), moved_mesh(fields, self.inputs), rho, params)
         return max(float(np.linalg.norm(load)), 1e-300)
 
     def ordering_grid(self):
@@ -190,7 +215,7 @@ class StructureBlock(FieldBlock):
 
 # ---- the registry entry ----------------------------------------------------------------------
 class StructureEntry(Field):
-    """``u``: plane-strain elasticity with SIMP, loaded by the flow."""
+    """``u``: plane-strain elasticity with SIMP, loaded by the flow and the solid's weight."""
 
     name, title, tables = "u", "structure", (STRUCTURE_TABLE,)
     summary = ("compliance", "max_displacement", "max_solid_displacement")
@@ -203,11 +228,14 @@ class StructureEntry(Field):
         return Memory(2 * grid.nodes, "q1-vector", 1.0e3)
 
     def build(self, model):
-        if model.flow is None:
+        st = model.scene.structure
+        if model.flow is None and not (st.density > 0 and any(st.gravity)):
             raise InputError("effects.structure", model.scene.effects.structure,
-                             "the structure is loaded by the flow; set effects.fluid too")
+                             "the structure is loaded by the flow or by its weight; set effects.fluid, "
+                             "or structure.density and structure.gravity")
         from tofsi.physics.structure import Structure
-        return Structure(model.mesh, model.scene.structure, model.flow, linear_algebra=model.linear_algebra)
+        return Structure(model.mesh, st, model.flow, linear_algebra=model.linear_algebra,
+                         solids=named_solids(model.scene.geometry, model.mesh))
 
     def block(self, model, stage):
         structure = model.structure

@@ -1,4 +1,5 @@
-"""``compliance``: ``f(w, x, rho) . u`` [J/m], the work of the fluid load on the structure."""
+"""``compliance``: ``f(w, x, rho) . u`` [J/m], the work of the load (the fluid's, and the solid's
+weight where it has one) on the structure."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ from tofsi.core.registry import OBJECTIVES
 
 @OBJECTIVES.register
 class Compliance(Objective):
-    """The work of the fluid load on the structure's displacement, ``f(w, x, rho) . u`` [J/m]."""
+    """The work of the load on the structure's displacement, ``f(w, x, rho) . u`` [J/m]: the fluid's
+    force (and the solid's weight where structure.gravity gives one)."""
 
     name, needs, label, units = "compliance", "u", "compliance", "J/m"
 
@@ -21,8 +23,9 @@ class Compliance(Objective):
         st, X, rho, params, u = model.structure, state.mesh_displacement, state.rho, state.params, state.u
         force = st.force
         out = {"u": st.load(state.w, X, rho, params),
-               "w": force.fluid_partial_transpose(u, state.w, X, rho, params),
-               "rho": np.einsum("ea,ea->e", u[st.dofs], force.density_vectors(state.w, X, rho, params))}
+               "rho": np.einsum("ea,ea->e", u[st.dofs], st.load_density_vectors(state.w, X, rho, params))}
+        if force is not None:
+            out["w"] = force.fluid_partial_transpose(u, state.w, X, rho, params)
         if state.x is not None:                       # the flow saw the moved mesh
             out["x"] = force.shape_partial_transpose(u, state.w, X, rho, params)
         return out

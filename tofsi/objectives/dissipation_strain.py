@@ -14,10 +14,10 @@ class StrainDissipation(FlowObjective):
     half the power dissipated by the strain-rate (symmetric) viscous form -- topFlow's
     objective ``phi = 1/2 int mu d_j v_i (d_j v_i + d_i v_j) + alpha v_i v_i``
     (Alexandersen 2023). It equals ``dissipation`` plus ``1/2 int mu grad v : grad v^T``,
-    a boundary term for divergence-free flow. Its shape partial: the complex step through
-    :meth:`element_values`."""
+    a boundary term for divergence-free flow."""
 
     name, needs, label, units = "dissipation-strain", "w", "strain-rate dissipation functional", "W/m"
+    # its shape partial: FlowObjective's complex step through element_values
 
     def element_values(self, view) -> np.ndarray:
         _, wd, v, L = view.fields                                          # L (E, G, 2, 2)

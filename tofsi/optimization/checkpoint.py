@@ -21,7 +21,7 @@ from dataclasses import asdict
 import numpy as np
 
 from tofsi.core.blocks import Continuation, Stage, State
-from tofsi.optimization.protocol import NO_QUALITY, Evaluation, FailedEvaluation
+from tofsi.optimization.protocol import Evaluation, FailedEvaluation
 from tofsi.runs.output import atomic_write, to_json
 from tofsi.optimization.resume import check_resume, identity, read_checkpoint
 
@@ -57,6 +57,13 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
     atomic_write(path, write)
 
 
+def quality_record(values) -> tuple:
+    """An evaluation's mesh figures (see :func:`tofsi.optimization.problem.mesh_quality`), NaN for
+    those a checkpoint of an earlier version did not hold."""
+    values = [float(q) for q in values]
+    return tuple(values + [np.nan] * (4 - len(values)))
+
+
 def record(stage: Stage | None) -> dict | None:
     """A stage record (:class:`tofsi.core.blocks.Stage`) as JSON: its numbers and its structure,
     one flat table (None stays None)."""
@@ -90,7 +97,7 @@ def read_stage(path, problem) -> tuple[dict, list[Evaluation | FailedEvaluation]
             continue
         f, volume = data[f"e{k}_f"]
         replay.append(Evaluation(gamma, float(f), data[f"e{k}_df"], data[f"e{k}_g"], data[f"e{k}_dg"],
-                                 float(volume), tuple(float(q) for q in data.get(f"e{k}_quality", NO_QUALITY)),
+                                 float(volume), quality_record(data.get(f"e{k}_quality", [])),
                                  tuple(int(r) for r in data.get(f"e{k}_ramp", [0, 0]))))
     state = State(rho=data["rho"], converged=True,
                   fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})

@@ -27,6 +27,7 @@ class Iteration:
     min_skewness: float = float("nan")        # of the moved fluid mesh (NaN: the mesh did not move)
     min_area_change: float = float("nan")
     max_area_change: float = float("nan")
+    max_interface_gap: float = float("nan")    # max |x - u| [m] on the solid's nodes (rho >= 1/2)
     skewness_constraint: float = float("nan")  # g of design.min_skewness (NaN: not constrained here)
     fallbacks: int = 0                         # failed trial designs so far in the run
     load_steps: int = 0                        # steps of the inflow ramp this evaluation took (0: none)
@@ -47,4 +48,5 @@ class Iteration:
         return cls(**{k: float("nan") if v is None and k in NOT_APPLICABLE else v for k, v in row.items()})
 
 
-NOT_APPLICABLE = ("min_skewness", "min_area_change", "max_area_change", "skewness_constraint")
+NOT_APPLICABLE = ("min_skewness", "min_area_change", "max_area_change", "max_interface_gap",
+                  "skewness_constraint")

@@ -31,20 +31,21 @@ from tofsi.optimization.design import DesignMap
 from tofsi.optimization.design_file import read_design
 from tofsi.core.errors import InputError
 from tofsi.core.kept import Kept, input_key
-from tofsi.mesh import quality
+from tofsi.mesh.quality import summary as quality_summary
 from tofsi.objectives.skewness import SoftMinSkewness
 from tofsi.objectives.volume import VolumeFraction
 from tofsi.core.registry import OBJECTIVES
 from tofsi.optimization.protocol import NO_QUALITY, Evaluation
 
 
-def mesh_quality(mesh, state) -> tuple[float, float, float]:
-    """``(min skewness, min area change, max area change)`` of the fluid mesh a state's flow
-    was solved on; NaN where the mesh did not move (one-way)."""
+def mesh_quality(model, state) -> tuple[float, float, float, float]:
+    """``(min skewness, min area change, max area change, max interface gap [m])`` of the fluid
+    mesh a state's flow was solved on; NaN where the mesh did not move (one-way)."""
     if state.x is None:
         return NO_QUALITY
-    q = quality.summary(mesh.points, mesh.points + state.mesh_displacement, mesh.quads)
-    return q.min_skewness, q.min_area_change, q.max_area_change
+    mesh = model.mesh
+    q = quality_summary(mesh.points, mesh.points + state.mesh_displacement, mesh.quads)
+    return q.min_skewness, q.min_area_change, q.max_area_change, model.motion.interface_gap(state.x, state.u, state.rho)
 
 
 @dataclass(eq=False)
@@ -221,7 +222,7 @@ class Problem:
         state = point.state
         ramp = state.reports.get("load_ramp", {})
         return Evaluation(point.gamma, f, df, g, dg, self.volume_fraction.value(self.model, state),
-                          mesh_quality(self.model.mesh, state),
+                          mesh_quality(self.model, state),
                           (len(ramp.get("steps", ())), int(ramp.get("cutbacks", 0))), state.data())
 
     def _total(self, point: "DesignPoint", quantity) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from tofsi.core.blocks import Stage, State
 
-NO_QUALITY = (float("nan"),) * 3          # the mesh did not move: no quality to report
+NO_QUALITY = (float("nan"),) * 4          # the mesh did not move: no quality to report
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,8 +30,8 @@ class Evaluation:
     gamma : the design variables ``(n_design,)``; f, df : the objective and ``df/dgamma``
     ``(n_design,)``; g, dg : the constraints ``g <= 0`` ``(m,)`` (the volume bound first) and
     ``dg/dgamma`` ``(m, n_design)``; volume : the solid fraction of the design region;
-    quality : ``(min skewness, min area change, max area change)`` of the moved fluid mesh
-    (NaN where it did not move); ramp : ``(steps, cutbacks)`` of the inflow ramp the solve
+    quality : ``(min skewness, min area change, max area change, max interface gap [m])`` of
+    the moved fluid mesh (NaN where it did not move); ramp : ``(steps, cutbacks)`` of the inflow ramp the solve
     took (``(0, 0)``: none); state : the coupled state's record (fields, no factorizations;
     None for an evaluation replayed from a checkpoint, or once a newer one holds the state);
     time_s : the run time a replayed evaluation was recorded at (None: computed now).
@@ -43,7 +43,7 @@ class Evaluation:
     g: np.ndarray
     dg: np.ndarray
     volume: float
-    quality: tuple[float, float, float] = NO_QUALITY
+    quality: tuple[float, float, float, float] = NO_QUALITY
     ramp: tuple[int, int] = (0, 0)
     state: State | None = None
     time_s: float | None = None

@@ -1,11 +1,13 @@
-"""Finite-strain (neo-Hookean) elasticity of the unified domain: forces, tangent, Newton solve.
+"""Finite-strain elasticity of the unified domain: forces, tangent, Newton solve.
 
 Total Lagrangian on the reference mesh, plane strain, element kernel
-:class:`~tofsi.fem.neo_hookean.NeoHookeanKernel`. Element moduli by SIMP,
+a :class:`~tofsi.fem.hyperelastic.HyperelasticKernel` of the material
+(:class:`~tofsi.fem.neo_hookean.NeoHookeanKernel` by default,
+:class:`~tofsi.fem.saint_venant_kirchhoff.SaintVenantKirchhoffKernel`). Element moduli by SIMP,
 ``E_e = Emin + rho_e^p (E0 - Emin)``; nearly void elements by the energy
 interpolation of Wang et al. (2014): ``W_e = E_e [W_NL(g u) - W_L(g u) + W_L(u)]``
-with ``g = g(rho)`` (:class:`~tofsi.fem.neo_hookean.NonlinearWeight`), or plain
-SIMP (``g = 1``: every element neo-Hookean). The residual is
+with ``g = g(rho)`` (:class:`~tofsi.fem.hyperelastic.NonlinearWeight`), or plain
+SIMP (``g = 1``: every element nonlinear). The residual is
 
     S(u; w, x, rho) = R_int(u; rho) - f(w, x, rho),
 
@@ -40,7 +42,8 @@ import scipy.sparse as sp
 
 from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
-from tofsi.fem.neo_hookean import ElementValues, NeoHookeanKernel, NonlinearWeight
+from tofsi.fem.hyperelastic import ElementValues, HyperelasticKernel, NonlinearWeight
+from tofsi.fem.neo_hookean import NeoHookeanKernel
 from tofsi.physics.interpolation import SIMP
 from tofsi.core.iteration import forcing_term
 from tofsi.core.kept import Kept, input_key
@@ -93,7 +96,7 @@ class StepFailed(Exception):
 
 
 class FiniteStrainElasticity:
-    """The neo-Hookean structure's internal forces, tangent, density partials and Newton solve.
+    """A finite-strain structure's internal forces, tangent, density partials and Newton solve.
 
     mesh : the structured mesh (reference configuration); settings : the
     :class:`~tofsi.scene.settings.StructureSettings` (``poisson_ratio``,
@@ -102,8 +105,8 @@ class FiniteStrainElasticity:
     :class:`~tofsi.fem.dirichlet.DirichletOperator`; dofs : element dofs
     ``(E, 8)``; factorize : ``A -> `` a direct solver of the tangent ``A`` (the
     structure's backend and ordering); K0 : the small-strain element stiffness per
-    unit modulus, if already made; kernel : the hyperelastic element kernel's class
-    (:class:`~tofsi.fem.neo_hookean.NeoHookeanKernel`'s interface).
+    unit modulus, if already made; kernel : the material's
+    :class:`~tofsi.fem.hyperelastic.HyperelasticKernel` class.
     """
 
     def __init__(self, mesh, settings, bc, dofs, factorize, K0=None, kernel=NeoHookeanKernel):
@@ -125,10 +128,10 @@ class FiniteStrainElasticity:
         return self.weight(rho), self.weight.derivative(rho)
 
     def nonlinear_elements(self, rho) -> np.ndarray:
-        """The elements evaluated by the neo-Hookean kernel: ``g(rho) > LINEAR_BELOW``."""
+        """The elements evaluated by the material's kernel: ``g(rho) > LINEAR_BELOW``."""
         return np.flatnonzero(self.nonlinear_weight(rho)[0] > LINEAR_BELOW)
 
-    def _kernel_of(self, elements: np.ndarray) -> NeoHookeanKernel:
+    def _kernel_of(self, elements: np.ndarray) -> HyperelasticKernel:
         if elements.size == self.kernel.n_elements:
             return self.kernel
         quads = self.mesh.quads[elements]
@@ -136,7 +139,7 @@ class FiniteStrainElasticity:
             self.mesh.points[quads], self.settings.poisson_ratio, self.kernel.K0[elements]))
 
     def _values(self, u, rho, simp: SIMP, tangent: bool) -> ElementValues:
-        """The elements' values: the neo-Hookean kernel's on the nonlinear elements, the linear
+        """The elements' values: the material kernel's on the nonlinear elements, the linear
         element's (``E K0 u``, ``E K0``, ``det F = 1``) elsewhere."""
         g, _ = self.nonlinear_weight(rho)
         modulus = simp(rho)
@@ -164,7 +167,7 @@ class FiniteStrainElasticity:
         ``det F`` ``(E,)``; raises :class:`~tofsi.core.errors.NumericalError` if an element inverts."""
         Re, Ke, det_min, _ = self._values(u, rho, simp, tangent)
         if Re is None:
-            raise NumericalError("structure: an element is inverted (det F <= 0 in the neo-Hookean part)",
+            raise NumericalError("structure: an element is inverted (det F <= 0 in the nonlinear part)",
                                  self.worst_element(det_min))
         return Re, Ke, det_min
 
@@ -187,7 +190,7 @@ class FiniteStrainElasticity:
         if nl.size:
             vals[nl] = self._kernel_of(nl).density_vectors(ue[nl], simp(rho)[nl], dmodulus[nl], g[nl], dg[nl])
         if np.isnan(vals).any():
-            raise NumericalError("structure: an element is inverted (det F <= 0 in the neo-Hookean part)",
+            raise NumericalError("structure: an element is inverted (det F <= 0 in the nonlinear part)",
                                  self.worst_element(self._values(u, rho, simp, False).det_min))
         return vals
 
@@ -274,7 +277,7 @@ class FiniteStrainElasticity:
         worst = self.worst_element(self._values(failed.u, rho, simp, False).det_min)
         origin = "the guess's load" if report.warm_start else "zero"
         raise NumericalError(
-            f"structure (neo-Hookean): no convergence at load factor {load:.4g} (from {origin}) after "
+            f"structure ({self.kernel_type.material}): no convergence at load factor {load:.4g} (from {origin}) after "
             f"{report.cutbacks} cutbacks ({failed}); smallest det F {worst['min_det_F']:.3g} in element "
             f"{worst['worst_element']} at ({worst['centroid'][0]:.3g}, {worst['centroid'][1]:.3g}) m",
             {**worst, "load_factor": load, "from_guess": report.warm_start, "cutbacks": report.cutbacks,

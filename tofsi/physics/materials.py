@@ -29,6 +29,7 @@ import scipy.sparse as sp
 from tofsi.core.registry import MATERIALS
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.neo_hookean import NeoHookeanKernel
+from tofsi.fem.saint_venant_kirchhoff import SaintVenantKirchhoffKernel
 from tofsi.linalg import RecyclingSolver
 from tofsi.physics.finite_strain import FiniteStrainElasticity
 from tofsi.physics.interpolation import SIMP
@@ -171,3 +172,13 @@ class FiniteStrain(Material):
         solver = self.solver(rho, simp) if solver is None else solver
         solution = self.elasticity.solve(f, rho, simp, guess, solver.recycling)
         return solution.u, solution.report.as_dict()
+
+
+@MATERIALS.register
+class SaintVenantKirchhoff(FiniteStrain):
+    """Saint Venant-Kirchhoff finite strain, ``W = lam/2 (tr E)^2 + mu E:E`` in the Green-Lagrange
+    strain ``E`` (Turek & Hron's solid; :mod:`tofsi.fem.saint_venant_kirchhoff`): the neo-Hookean
+    material's Newton, load steps, void treatment and adjoint with another element kernel."""
+
+    name = "saint-venant-kirchhoff"
+    kernel = SaintVenantKirchhoffKernel

@@ -9,10 +9,17 @@ studies (:mod:`tofsi.coupling.motion`). Two forms, chosen by the scene:
   boundary node stays (``x = 0``);
 * density-blended (design scenes): every quad moves, the channel boundary
   stays, and an interior node ``i`` blends mover and structure with the solid
-  indicator ``s_i = 1 - prod_{e at i} (1 - rho_e)`` (see :mod:`movers.blend`):
-  ``s_i = 1`` as soon as one neighbouring element is solid, 0 when all are
-  fluid, smooth in between, so the form reduces to the explicit one for 0/1
-  densities and is differentiable in rho.
+  indicator ``s_i = 1 - prod_{e at i} (1 - h(rho_e))``, ``h`` a smooth step from
+  0 at rho = 0 to 1 at ``rho = r = mover.follow_density`` (see
+  :mod:`movers.blend`, :mod:`tofsi.physics.indicators`): ``s_i = 1`` exactly
+  as soon as one neighbouring element has ``rho >= r`` -- the mesh node then
+  moves with the structure, ``x_i = u_i``, to round-off, whatever the mover's
+  forces -- 0 when all are fluid, twice differentiable in between, so the
+  form reduces to the explicit one for 0/1 densities and is differentiable in
+  rho. (A threshold below 1 matters at large motion: with ``s`` merely near 1
+  on a gray boundary a stiffened nonlinear mover's forces, 100-200 times the
+  penalty's reference scale, hold the mesh up to 30 % of the motion away from
+  the structure; docs/optimization.md section 4.)
 
 Layered stiffening factors (``mover.layers``) apply to the element layers
 counted from the interface of the fixed solid, or in design scenes, with
@@ -55,6 +62,7 @@ class MeshMotion:
         self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
         self.mover = movers.mover_class(scene.mover.name)(scene.mover.options)
         self.blended = scene.has_design
+        self.follow_density = scene.mover.follow_density
         boundary = mesh.boundary_nodes
         solid = mesh.region == SOLID
         self.layer = element_layers(mesh.incidence, mesh.interface_nodes, ~solid,
@@ -111,7 +119,7 @@ class MeshMotion:
     def _problem(self, rho) -> MotionProblem:
         if not self.blended:
             return self.base
-        s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
+        s, _ = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes, self.follow_density)
         if self.density_layers is None:
             return self.base.with_data(blend=s)
         return self.base.with_data(blend=s, stiffening=self.density_layers.factors(rho)[self.moving])
@@ -139,13 +147,25 @@ class MeshMotion:
         moving quad) to ``rho_bar (E,)`` (fixed-solid layers do not depend on rho)."""
         if not self.blended:
             return np.zeros(self.mesh.n_elements)
-        _, ds = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes)
+        _, ds = solid_indicator(rho, self.mesh.quads, self.mesh.n_nodes, self.follow_density)
         rho_bar = ds.T @ s_bar
         if self.density_layers is not None and f_bar is not None:
             full = np.zeros(self.mesh.n_elements)
             full[self.moving] = f_bar
             rho_bar = rho_bar + self.density_layers.transpose(rho, full)
         return rho_bar
+
+    def interface_gap(self, x, u, rho=None) -> float:
+        """``max |x_i - u_i|`` [m] over the solid's nodes that follow the structure (not on the
+        channel's boundary or outside the band) of elements with ``rho >= 1/2`` (the fixed solid
+        where ``rho`` is None): how far the fluid mesh leaves the structure where the flow sees
+        solid (0 to round-off when ``mover.follow_density <= 1/2``)."""
+        solid = (self.mesh.region == SOLID) if rho is None else np.asarray(rho) >= 0.5
+        nodes = np.intersect1d(np.unique(self.mesh.quads[solid]), self.follows)
+        if nodes.size == 0:
+            return 0.0
+        gap = np.asarray(x).reshape(-1, 2)[nodes] - np.asarray(u).reshape(-1, 2)[nodes]
+        return float(np.linalg.norm(gap, axis=1).max())
 
     # ---- moving and derivatives ------------------------------------------------------
     def move(self, u, rho=None, progress=None, initial=None, solver=None) -> MoveResult:

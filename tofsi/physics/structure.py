@@ -2,15 +2,18 @@
 
 Plane-strain elasticity on Q1, over the whole channel (unified domain):
 element moduli by SIMP, ``E_e = Emin + rho_e^p (E0 - Emin)``, on the
-reference mesh; clamped on the scene's channel sides. The internal forces
+reference mesh; clamped on the scene's channel sides and named solids. The internal forces
 ``R_int`` are its material's (:mod:`tofsi.physics.materials`, chosen by
 ``structure.model`` or a stage's ``design.structure_model``): ``linear``
-(small strain, ``R_int = K_s(rho) u``) or ``neo-hookean`` (finite strain,
-total Lagrangian, with the energy interpolation of nearly void elements;
+(small strain, ``R_int = K_s(rho) u``), ``neo-hookean`` or ``saint-venant-kirchhoff``
+(finite strain, total Lagrangian, with the energy interpolation of nearly void elements;
 :mod:`tofsi.physics.finite_strain`). The load ``f`` is the
 fluid's force on the solid phase, :class:`~tofsi.physics.fluid_load.FluidForce`
 (``structure.load``: the momentum-consistent reaction by default), on the
-moved mesh ``X + x``, with the solid phase weighted by ``psi_e = rho_e^k``.
+moved mesh ``X + x``, with the solid phase weighted by ``psi_e = rho_e^k``,
+plus the solid's weight where ``structure.density`` and ``structure.gravity``
+give one (:class:`~tofsi.physics.gravity.DeadLoad`, a dead load weighted by the
+same ``psi``). Without a flow the weight is the only load.
 ``k = 1`` is Lundgaard et al.'s choice; since a gray element's displacement
 then grows like ``rho^(1 - p)`` as it empties, ``k = p`` keeps it bounded
 (robust two-way coupling).
@@ -37,11 +40,29 @@ from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.physics.interpolation import SIMP
 from tofsi.linalg import AMGSolver, DirectSolver, LinearAlgebra, nested_dissection
-from tofsi.mesh.structured import DESIGN, SOLID
+from tofsi.mesh.structured import DESIGN, SIDES, SOLID
 from tofsi.physics.materials import Material
 from tofsi.physics.fluid_load import FluidForce
+from tofsi.physics.gravity import DeadLoad
 
 AMG_TOL = 1e-10          # AMG-CG relative residual of the iterative path (the gradient's needs)
+
+
+def held_nodes(mesh, clamped, solids=None) -> np.ndarray:
+    """The nodes ``structure.clamped`` holds: those of the channel sides it names and of the
+    elements of the named solids (``solids``: name -> elements, :func:`tofsi.mesh.channel.named_solids`)."""
+    solids = solids or {}
+    nodes = []
+    for name in clamped:
+        if name in SIDES:
+            nodes.append(mesh.side_nodes(name))
+        elif name in solids:
+            nodes.append(np.unique(mesh.quads[solids[name]]))
+        else:
+            raise InputError("structure.clamped", name, "neither a channel side (" + ", ".join(SIDES) + ") nor a "
+                             "named solid (" + (", ".join(solids) or "geometry.solid_names, geometry.circle_names")
+                             + ")")
+    return np.unique(np.concatenate(nodes))
 
 
 def check_held(mesh, clamped_nodes: np.ndarray, sides) -> None:
@@ -62,8 +83,8 @@ def check_held(mesh, clamped_nodes: np.ndarray, sides) -> None:
         centre = mesh.centroids[solid[label == floating[0]]].mean(axis=0)
         raise InputError("structure.clamped", list(sides),
                          f"the solid region around ({centre[0]:.3g}, {centre[1]:.3g}) m touches none of "
-                         "these channel sides, so nothing holds it; clamp a side it touches (or set "
-                         "effects.structure = \"none\")")
+                         "these channel sides or solids, so nothing holds it; clamp a side or a named "
+                         "solid it touches (or set effects.structure = \"none\")")
 
 
 class Structure:
@@ -72,21 +93,24 @@ class Structure:
     ``params`` arguments default to the settings' load exponent and the
     default SIMP exponent (:class:`~tofsi.core.blocks.Continuation`); ``material`` arguments
     to the settings' ``structure.model`` (:meth:`material`); ``linear_algebra`` is the
-    model's backend (default: superlu, or the process default).
+    model's backend (default: superlu, or the process default); ``solids`` the named solids'
+    elements (name -> element indices) that ``structure.clamped`` may name.
     """
 
-    def __init__(self, mesh, settings, flow=None, linear_algebra: LinearAlgebra | None = None):
+    def __init__(self, mesh, settings, flow=None, linear_algebra: LinearAlgebra | None = None, solids=None):
         self.mesh, self.settings, self.flow = mesh, settings, flow
         self.linear_algebra = linear_algebra or LinearAlgebra.default()
         self.force = None if flow is None else FluidForce(flow, settings.load)
+        self.weight = (DeadLoad(mesh, settings.density, settings.gravity)
+                       if settings.density > 0 and any(settings.gravity) else None)
         self.E0 = settings.youngs_modulus
         self.Emin = settings.e_min_ratio * settings.youngs_modulus
         self.defaults = Continuation(load_exponent=settings.load_exponent)
         self.dofs = element_dofs(mesh.quads, 2)
         self.size = 2 * mesh.n_nodes
-        clamped = np.unique(np.concatenate([mesh.side_nodes(s) for s in settings.clamped]))
+        clamped = held_nodes(mesh, settings.clamped, solids)
         if clamped.size == 0:
-            raise InputError("structure.clamped", list(settings.clamped), "no side to clamp")
+            raise InputError("structure.clamped", list(settings.clamped), "no side or solid to clamp")
         check_held(mesh, clamped, settings.clamped)
         self.bc = DirichletOperator(self.dofs, self.dofs, self.size, element_dofs(clamped[:, None], 2).ravel())
         self.K0 = element_stiffness(mesh.points[mesh.quads], *lame(1.0, settings.poisson_ratio))
@@ -129,8 +153,26 @@ class Structure:
 
     # ---- fluid load --------------------------------------------------------------
     def load(self, w, x=None, rho=None, params=None) -> np.ndarray:
-        """Fluid load ``f`` (2n,) [N/m] on the nodes."""
-        return self.force.load(w, x, rho, self._params(params))
+        """The load ``f`` (2n,) [N/m] on the nodes: the fluid's (``w`` the flow state, ``x`` the
+        fluid mesh's motion) and the solid's weight."""
+        f = np.zeros(self.size)
+        if self.force is not None:
+            f += self.force.load(w, x, rho, self._params(params))
+        if self.weight is not None:
+            f += self.weight.load(self._rho(rho), self._params(params))
+        return f
+
+    def load_density_vectors(self, w, x, rho, params=None) -> np.ndarray:
+        """``df_e/drho_e`` ``(E, 8)`` of the whole load (fluid and weight)."""
+        vals = np.zeros((self.mesh.n_elements, 8))
+        if self.force is not None:
+            vals += self.force.density_vectors(w, x, rho, self._params(params))
+        if self.weight is not None:
+            vals += self.weight.density_vectors(self._rho(rho), self._params(params))
+        return vals
+
+    def _rho(self, rho):
+        return np.zeros(self.mesh.n_elements) if rho is None else rho
 
     # ---- residual, solve and partials ----------------------------------------------
     def residual(self, u, w, x, rho, params=None, material: Material | None = None) -> np.ndarray:
@@ -201,10 +243,10 @@ class Structure:
         return -self.force.shape_partial(w, x, rho, self._params(params))
 
     def density_vectors(self, u, w, x, rho, params=None, material: Material | None = None) -> np.ndarray:
-        """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e`` (at finite strain
-        ``dR_int,e/drho_e`` with the ``E'(rho)`` and ``g'(rho)`` terms)."""
+        """``dS_e/drho_e`` ``(E, 8)``: ``E'(rho_e) K0_e u_e - df_e/drho_e`` (fluid load and weight; at
+        finite strain ``dR_int,e/drho_e`` with the ``E'(rho)`` and ``g'(rho)`` terms)."""
         R_int = (material or self.material()).density_vectors(u, rho, self.simp(params))
-        return R_int - self.force.density_vectors(w, x, rho, self._params(params))
+        return R_int - self.load_density_vectors(w, x, rho, params)
 
     def density_partial(self, u, w, x, rho, params=None, material: Material | None = None) -> sp.csr_matrix:
         """``S_rho`` (2n x E)."""

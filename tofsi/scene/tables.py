@@ -27,6 +27,7 @@ import movers
 from tofsi.core.config import build, documentation, option
 from tofsi.core.errors import InputError
 from tofsi.core.registry import OBJECTIVES, SCENE_TABLES
+from tofsi.mesh.structured import SIDES
 from tofsi.scene.settings import CoupledSettings, DesignSettings, OptimizerSettings, SolverSettings, TuneSettings
 
 THIN = 1e-6                 # solids thinner than this fraction of the channel get a warning
@@ -90,7 +91,7 @@ class SceneTable:
 # ---- geometry, mesh, deformation, effects (and the mover's name), objectives ---------------------
 @dataclass(frozen=True)
 class Geometry:
-    """A channel ``[0, length] x [0, height]`` with solid, hole and design rectangles."""
+    """A channel ``[0, length] x [0, height]`` with solid, hole and design rectangles and solid circles."""
 
     length: float = option(2.0, gt=0, doc="channel length along x [m]")
     height: float = option(1.0, gt=0, doc="channel height along y [m]")
@@ -102,10 +103,34 @@ class Geometry:
                                                       "each must overlap a solid")
     design: tuple[float, ...] = option((), doc="design rectangle [x0, x1, y0, y1] [m]; "
                                                "empty: no design region")
+    circles: tuple[tuple[float, ...], ...] = option((), length=3,
+                                                    doc="circular solids [x, y, r] [m]: the elements whose "
+                                                        "centre lies inside (a staircase, symmetric about "
+                                                        "the centre: the mesh has grid lines through it and "
+                                                        "at x +- r, y +- r, and is graded towards the circle)")
+    solid_names: tuple[str, ...] = option((), doc="names of the solid rectangles, one per entry of "
+                                                  "geometry.solids (or none), for structure.clamped and "
+                                                  "probes.forces")
+    circle_names: tuple[str, ...] = option((), doc="names of the circles, one per entry of geometry.circles "
+                                                   "(or none)")
 
     def __post_init__(self):
         if self.design and len(self.design) != 4:
             raise InputError("design", self.design, "expected [] or [x0, x1, y0, y1]")
+        for i, (x, y, r) in enumerate(self.circles):
+            if not (r > 0 and 0 <= x - r and x + r <= self.length and 0 <= y - r and y + r <= self.height):
+                raise InputError(f"circles[{i}]", [x, y, r], f"need r > 0 and the circle inside the channel "
+                                 f"(0 <= x - r, x + r <= {self.length}, 0 <= y - r, y + r <= {self.height})")
+        for key, names, shapes in (("solid_names", self.solid_names, "solids"),
+                                   ("circle_names", self.circle_names, "circles")):
+            if names and len(names) != len(getattr(self, shapes)):
+                raise InputError(key, list(names), f"give one name per entry of geometry.{shapes} "
+                                 f"({len(getattr(self, shapes))}), or none")
+        named = list(self.solid_names) + list(self.circle_names)
+        for name in named:
+            if not name or name in SIDES or named.count(name) > 1:
+                raise InputError("solid_names" if name in self.solid_names else "circle_names", name,
+                                 "a name must be non-empty, unique and not a channel side (" + ", ".join(SIDES) + ")")
         named = [("solids", i, r) for i, r in enumerate(self.solids)]
         named += [("holes", i, r) for i, r in enumerate(self.holes)]
         if self.design:
@@ -183,6 +208,50 @@ class Effects:
                              "allowed: 'none' or one of " + ", ".join(map(repr, names)))
 
 
+@dataclass(frozen=True)
+class Probes:
+    """What a solve reports besides its fields' figures (table ``[probes]``): the structure's
+    displacement at named points and the fluid's force on named solids."""
+
+    points: tuple[tuple[float, ...], ...] = option((), length=2,
+                                                   doc="points [x, y] [m] where solve reports the structure's "
+                                                       "displacement, as figures ux_<name> and uy_<name> [m] "
+                                                       "(bilinear on the element holding the point)")
+    point_names: tuple[str, ...] = option((), doc="the points' names, one per entry of probes.points (letters, "
+                                                  "digits and _)")
+    forces: tuple[str, ...] = option((), doc="named solids (geometry.solid_names, geometry.circle_names) whose "
+                                             "drag and lift solve reports, as figures drag_<name> and "
+                                             "lift_<name> [N/m]: the fluid load on their elements")
+
+    def __post_init__(self):
+        if len(self.point_names) != len(self.points):
+            raise InputError("point_names", list(self.point_names), f"give one name per entry of probes.points "
+                             f"({len(self.points)})")
+        for name in self.point_names:
+            if not name.isidentifier() or list(self.point_names).count(name) > 1:
+                raise InputError("point_names", name, "a point's name is a word of letters, digits and _, "
+                                 "used once")
+
+    @property
+    def named_points(self) -> dict[str, tuple[float, float]]:
+        """The points by name."""
+        return dict(zip(self.point_names, self.points, strict=True))
+
+
+def _check_probes(scene) -> None:
+    """The probes' points lie in the channel; their forces name named solids."""
+    geometry = scene.geometry
+    names = set(geometry.solid_names) | set(geometry.circle_names)
+    for i, (x, y) in enumerate(scene.probes.points):
+        if not (0 <= x <= geometry.length and 0 <= y <= geometry.height):
+            raise InputError(f"probes.points[{i}]", [x, y], f"outside the channel [0, {geometry.length:g}] x "
+                             f"[0, {geometry.height:g}]")
+    for i, name in enumerate(scene.probes.forces):
+        if name not in names:
+            raise InputError(f"probes.forces[{i}]", name, "allowed: a named solid (" + (
+                ", ".join(sorted(names)) or "none named: geometry.solid_names, geometry.circle_names") + ")")
+
+
 def mover_name(raw: dict) -> str:
     """The mover a raw scene names, by ``mover.name`` or ``effects.mesh_motion`` (they must agree)."""
     by_effects = raw.get("effects", {}).get("mesh_motion") if isinstance(raw.get("effects"), dict) else None
@@ -252,5 +321,6 @@ for _table in (SceneTable("geometry", Geometry), SceneTable("mesh", MeshSettings
                           reference=_objective_rows),
                SceneTable("optimizer", OptimizerSettings, resumable=("max_iter", "output_every")),
                SceneTable("coupled", CoupledSettings), SceneTable("tune", TuneSettings),
+               SceneTable("probes", Probes, check=_check_probes),
                SceneTable("solver", SolverSettings, resumable=("max_memory_gb",))):
     SCENE_TABLES.register(_table)
