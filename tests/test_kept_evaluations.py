@@ -1,7 +1,7 @@
 """Every kept evaluation refreshes when any of its inputs changes, and hands out read-only arrays.
 
 For each kept value (the flow's element Jacobians, element residuals, shape derivatives and
-force scale; the fluid load's element values, shape derivatives and stress operators; the mesh
+force scale, the equal-order flow's element basis; the fluid load's element values, shape derivatives and stress operators; the mesh
 motion's problem and blend; a design problem's point) the same object is asked again after one
 input changed -- an array, the continuation record, the flow's density or its settings record --
 and the answer must equal a fresh object's, built for the changed inputs alone.
@@ -184,3 +184,23 @@ def test_a_design_problems_point_refreshes_with_the_design_and_the_stage(point):
         assert problem.evaluate(g)[0] == pytest.approx(fresh.evaluate(g)[0], rel=1e-9)
         problem.set_stage(Stage(Continuation(**dataclasses.asdict(problem.params))))   # equal, not the same
     assert problem.evaluations == 4
+
+
+def test_the_equal_order_flows_kept_basis_refreshes_with_the_configuration(point):
+    """The Q1/Q1 flow keeps its element basis per configuration (keyed by ``x``, read-only; no
+    process-wide cache): a moved or unmoved mesh gives a fresh flow's basis, and the kernel with
+    the kept basis gives the values it forms with its own. Taylor-Hood keeps none."""
+    model, x = point["model"], point["x"]
+    settings = dataclasses.replace(model.scene.fluid, element="q1q1")
+    flow = Flow(model.mesh, settings)
+    first = flow.basis(x)
+    assert read_only(first) and flow.basis(x) is first
+    for moved in (1.5 * x, None):
+        again = flow.basis(moved)
+        same(again, Flow(model.mesh, settings).basis(moved))
+        assert not np.array_equal(first[1], again[1])
+    w = np.random.default_rng(3).normal(size=flow.size)
+    kept = flow.element_residual(w, x, point["rho"], params=point["params"])             # the kept basis
+    formed = flow.element_residual(w, x, point["rho"], Xe=flow.corners(x), params=point["params"])
+    same(kept, formed)
+    assert Flow(model.mesh, model.scene.fluid).basis(x) is None
