@@ -50,11 +50,11 @@ class FloorCounter:
         function = raw.__func__ if isinstance(raw, (staticmethod, classmethod)) else raw
 
         def timed(*a, **k):
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             out = function(*a, **k)
             key = label(a, k)
             self.count[key] += 1
-            self.seconds[key] += time.perf_counter() - t0
+            self.seconds[key] += time.process_time() - t0
             return out
         setattr(owner, name, staticmethod(timed) if isinstance(raw, staticmethod) else timed)
 
@@ -67,7 +67,7 @@ class FloorCounter:
         self.wrap(module.Factorization, "solve", lambda a, k: f"triangular solve pair, {len(a[1])} unknowns")
 
     def mark(self):
-        self.marks.append((time.perf_counter(), dict(self.count), dict(self.seconds)))
+        self.marks.append((time.process_time(), dict(self.count), dict(self.seconds)))
 
     def report(self) -> dict:
         (t0, c0, s0), (t1, c1, s1) = self.marks[1], self.marks[-1]

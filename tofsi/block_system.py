@@ -45,7 +45,7 @@ import scipy.sparse as sp
 from tofsi.blocks import Continuation, FieldBlock, Linearization, State
 from tofsi.errors import InputError, NumericalError
 from tofsi.iteration import aitken, backtracking, forcing_term
-from tofsi.linalg import BlockGaussSeidel, LinearAlgebra, RecyclingSolver, nested_dissection
+from tofsi.linalg import BlockGaussSeidel, BlockMatrix, LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import canonical_csr, resolve
 
 log = logging.getLogger(__name__)
@@ -74,9 +74,9 @@ class CoupledLinearization:
         self.system, self.names, self.lins, self.solver = system, names, lins, solver
         self._J = None
 
-    def matrix(self) -> sp.csr_matrix:
+    def matrix(self) -> BlockMatrix:
         if self._J is None:
-            self._J = self.system.jacobian(self.lins, self.names)
+            self._J = self.system.block_jacobian(self.lins, self.names)
         return self._J
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
@@ -187,6 +187,20 @@ class BlockSystem:
                                    for B, b in zip(blocks, names)], format="csr"))
         return sp.vstack(rows, format="csr")                    # no COO round trip, unlike bmat
 
+    def block_jacobian(self, lins: dict[str, Linearization], names, kept: dict | None = None) -> BlockMatrix:
+        """The block Jacobian of :meth:`jacobian` kept as its blocks (products, a block
+        preconditioner's diagonal blocks), assembled by nobody unless a whole-matrix LU asks."""
+        kept = kept or {}
+        blocks = {}
+        for i, a in enumerate(names):
+            lin = lins[a]
+            for j, b in enumerate(names):
+                B = (lin.matrix() if b == a else kept[(a, b)] if (a, b) in kept else
+                     (lin.coupling(b) if b in self.by_name[a].inputs else None))
+                if B is not None:
+                    blocks[(i, j)] = B if sp.isspmatrix_csr(B) else sp.csr_matrix(B)
+        return BlockMatrix(blocks, [self.by_name[n].size for n in names])
+
     def ordering(self, names) -> np.ndarray | None:
         """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid);
         computed once per tuple of names (the blocks' grids never change)."""
@@ -213,10 +227,9 @@ class BlockSystem:
         direct = self.linear_algebra.direct
         if kind == "direct":
             perm = self.ordering(comp)
-            return RecyclingSolver(lambda A: direct(A, perm=perm))
-        sizes = [self.by_name[n].size for n in comp]
+            return RecyclingSolver(lambda A: direct(A.tocsr() if isinstance(A, BlockMatrix) else A, perm=perm))
         orderings = [self.ordering((n,)) for n in comp]
-        return RecyclingSolver(lambda A: BlockGaussSeidel(A, sizes, orderings, direct=direct))
+        return RecyclingSolver(lambda A: BlockGaussSeidel(A, orderings=orderings, direct=direct))
 
     # ---- forward solve ------------------------------------------------------------------
     def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,
@@ -352,7 +365,7 @@ class BlockSystem:
         """One Newton step of the monolithic solve: the block Jacobian (with the ``kept`` couplings)
         solved to ``rtol``, then the backtracking line search on the merit. Returns ``(the accepted
         fields or None, the solver)`` -- the whole Jacobian's LU when GMRES fails."""
-        J = self.jacobian(lins, comp, kept)
+        J = self.block_jacobian(lins, comp, kept)
         try:
             step = solver.solve(J, b, rtol=rtol)
         except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
