@@ -12,8 +12,8 @@ components, in topological order, are solved one after the other:
     the ``relax`` field relaxed with Aitken's factor, until its relative
     change ``|z~ - z| / |z~|`` is at most ``tol``; the blocks before it in
     the sweep are then solved once more, so every field is consistent; or
-  - monolithic: Newton on the assembled block Jacobian
-    ``[[dR_a/dz_b]]`` (every block of the cycle needs a residual form), with
+  - monolithic: Newton on the block Jacobian ``[[dR_a/dz_b]]`` (every block of
+    the cycle needs a residual form; kept as its blocks, :class:`~tofsi.linalg.BlockMatrix`), with
     a backtracking line search on the largest block residual scaled by the
     block's force scale. Each Newton step is solved inexactly, to the
     Eisenstat-Walker relative tolerance (:func:`tofsi.iteration.forcing_term`;
@@ -24,8 +24,11 @@ components, in topological order, are solved one after the other:
     for the later iterates and the adjoint. With ``quasi_newton`` the couplings a block marks as
     slow to build and slow to change (``FieldBlock.slow_couplings``: the shape
     derivatives with respect to the mesh motion) are built at the first
-    iterate and kept for the rest of the solve; the converged state's exact
-    couplings are built once, for the adjoint.
+    iterate and kept while the Newton contracts (a step that leaves more than
+    ``SLOW_CONTRACTION`` of the residual rebuilds them at its iterate); the
+    converged state's exact couplings are built once, for the adjoint. A Newton
+    whose residual falls by less than ``STALL_FACTOR`` in ``STALL_ITERATIONS``
+    steps stops early (a load step's cutback is cheaper than its crawl).
 
 Both report their history and raise :class:`~tofsi.errors.NumericalError`
 when they do not converge. The system also gives the split of a stacked
@@ -50,6 +53,9 @@ from tofsi.linalg.backends import canonical_csr, resolve
 
 log = logging.getLogger(__name__)
 EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exactly" (after a failed line search)
+SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
+STALL_ITERATIONS = 8     # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
+STALL_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
@@ -339,11 +345,22 @@ class BlockSystem:
                 return
             if it == s.max_iter:
                 break
-            if kept is None and s.quasi_newton:         # the slow couplings of the first iterate
+            merits = [max(h[n] for n in comp) for h in history]
+            if it >= STALL_ITERATIONS and merits[-1] * STALL_FACTOR > merits[-1 - STALL_ITERATIONS]:
+                raise NumericalError(
+                    f"monolithic coupling stagnated: the largest scaled residual fell from "
+                    f"{merits[-1 - STALL_ITERATIONS]:.3g} to {merits[-1]:.3g} in {STALL_ITERATIONS} Newton steps",
+                    {"history": history})
+            if kept and it > 0 and merits[-1] > SLOW_CONTRACTION * merits[-2]:   # kept ones gone stale
+                log.info("monolithic Newton %d: the residual contracted by only %.2f; the slow couplings "
+                         "of this iterate from here on", it, merits[-1] / merits[-2])
+                history[-1]["couplings_rebuilt"] = True
+                kept = None
+            if kept is None and s.quasi_newton:         # the slow couplings of the first iterate (or a later)
                 kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
                         for o in getattr(b, "slow_couplings", ()) if o in comp}
             b = -np.concatenate(R)
-            eta = forcing_term([max(h[n] for n in comp) for h in history], s.tol)    # inexact Newton
+            eta = forcing_term(merits, s.tol)           # inexact Newton
             found, solver = self._newton_step(comp, lins, kept, b, eta, solver, fields, merit, max(norms),
                                               history)
             if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
@@ -357,6 +374,8 @@ class BlockSystem:
                 raise NumericalError("monolithic coupling: line search found no decrease",
                                      {"history": history})
             values, accepted = found[1]
+            if found[0] < 1.0:
+                log.info("monolithic Newton %d: step length %g", it, found[0])
             fields.update(values)
         raise NumericalError(f"monolithic coupling did not converge in {s.max_iter} Newton iterations",
                              {"history": history})
@@ -380,4 +399,7 @@ class BlockSystem:
             values.update({n: fields[n] + alpha * dz[n] for n in comp})
             value, lins_at = merit(values, linearize=(alpha == 1.0))
             return value, (values, lins_at)
-        return backtracking(norm, trial), solver
+        found = backtracking(norm, trial)
+        if found is not None:
+            history[-1]["step_length"] = found[0]
+        return found, solver

@@ -125,7 +125,8 @@ class CoupledModel:
               params: Continuation | None = None) -> State:
         """The coupled state for densities ``rho`` (E,) at continuation ``params`` (default:
         the scene's first stage); ``guess`` warm-starts the solvers. When a two-way solve fails at
-        the full inflow, the inflow is ramped from rest (``coupled.load_ramp``, :mod:`tofsi.load_ramp`;
+        the full inflow from it, the solve continues from the guess's densities (a two-way state of
+        another design) or ramps the inflow from rest (``coupled.load_ramp``, :mod:`tofsi.load_ramp`;
         one-way, the flow continues in its Reynolds number itself)."""
         t0 = time.perf_counter()
         if self.flow is None:
@@ -133,11 +134,13 @@ class CoupledModel:
         params = self.params if params is None else params
         c = self.scene.coupled
 
-        def at(p: Continuation, start: State | None) -> State:
-            return self.unfolded(self.system_for(p).solve(rho, p, start, progress))
-        coupled = bool(self.system_for(params).cycles)    # one-way: the flow's Reynolds continuation
+        def at(p: Continuation, start: State | None, densities=rho) -> State:
+            return self.unfolded(self.system_for(p).solve(densities, p, start, progress))
+        system = self.system_for(params)
+        coupled = bool(system.cycles)                     # one-way: the flow's Reynolds continuation
         with self.linear_algebra.blas():
-            state = ramped(at, params, guess, c.min_load_step) if c.load_ramp and coupled else at(params, guess)
+            state = (ramped(at, params, guess, c.min_load_step, rho, system.names) if c.load_ramp and coupled
+                     else at(params, guess))
         state.reports["wall_time_s"] = time.perf_counter() - t0
         return state
 
