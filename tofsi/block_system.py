@@ -9,7 +9,8 @@ components, in topological order, are solved one after the other:
   solved either
 
   - partitioned: Gauss-Seidel sweeps over its blocks in the system's order,
-    the ``relax`` field relaxed with Aitken's factor, until its relative
+    the ``relax`` field's next value from the interface quasi-Newton method
+    (:class:`~tofsi.iteration.InterfaceQuasiNewton`), until its relative
     change ``|z~ - z| / |z~|`` is at most ``tol``; the blocks before it in
     the sweep are then solved once more, so every field is consistent; or
   - monolithic: Newton on the block Jacobian ``[[dR_a/dz_b]]`` (every block of
@@ -47,7 +48,7 @@ import scipy.sparse as sp
 
 from tofsi.blocks import Continuation, FieldBlock, Linearization, State
 from tofsi.errors import InputError, NumericalError
-from tofsi.iteration import aitken, backtracking, forcing_term
+from tofsi.iteration import InterfaceQuasiNewton, backtracking, forcing_term
 from tofsi.linalg import BlockGaussSeidel, BlockMatrix, LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import canonical_csr, resolve
 
@@ -284,21 +285,18 @@ class BlockSystem:
         for name in comp:
             if fields[name] is None:
                 fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
-        omega, r_previous, history = s.relaxation, None, []
+        accelerator, history = InterfaceQuasiNewton(s.relaxation), []
         at = comp.index(relax)
         for k in range(s.max_iter):
             for name in comp[:at]:
                 fields[name] = self._solve_block(name, fields, state, progress,
                                                  state.linearizations.get(name))
             new = self._solve_block(relax, fields, state, progress, state.linearizations.get(relax))
-            r = new - fields[relax]
-            omega = aitken(omega, r, r_previous)
-            change = float(np.linalg.norm(r) / max(np.linalg.norm(new), 1e-300))
-            history.append({"iteration": k, "relative_change": change, "omega": omega})
+            change = float(np.linalg.norm(new - fields[relax]) / max(np.linalg.norm(new), 1e-300))
+            history.append({"iteration": k, "relative_change": change})
             log.info("partitioned coupling %d: relative change of %s %.3e", k, relax, change)
             converged = change <= s.tol
-            fields[relax] = new if converged else fields[relax] + omega * r
-            r_previous = r
+            fields[relax] = new if converged else accelerator.next(fields[relax], new)
             for name in comp[at + 1:]:
                 fields[name] = self._solve_block(name, fields, state, progress,
                                                  state.linearizations.get(name))
