@@ -4,7 +4,7 @@
     adj = Adjoint(system, state)           # a BlockSystem and a converged state of it
     df_drho = adj.gradient(partials)       # partials {field: df/dz, "rho": df/drho}
 
-The package knows blocks (:mod:`tofsi.blocks`), not physics.
+The package knows blocks (:mod:`tofsi.core.blocks`), not physics.
 """
 
 from adjoint.solve import Adjoint

@@ -85,7 +85,7 @@ def check_blocks(system, state, seed: int = 0, cd_tol: float = 1e-6) -> list[dic
         if block.has_residual:
             lin = block.linearize(state.fields, rho, params)
 
-        def phi(fields=None, rho_=None, lam=None):
+        def phi(fields=None, rho_=None, lam=None, block=block):
             values = dict(state.fields) if fields is None else fields
             return float(lam @ block.residual(values, rho if rho_ is None else rho_, params))
 
@@ -96,7 +96,7 @@ def check_blocks(system, state, seed: int = 0, cd_tol: float = 1e-6) -> list[dic
         candidates += [(o, _direction(rng, state.fields[o], 1e-6), inputs.get(o, np.zeros(state.fields[o].size)))
                        for o in block.inputs]
         for field, d, grad in candidates:
-            def f(z, field=field):
+            def f(z, field=field, lam=lam):
                 return phi({**state.fields, field: z}, lam=lam)
             z = state.fields[field]
             slope = float(grad @ d)
@@ -113,7 +113,7 @@ def check_blocks(system, state, seed: int = 0, cd_tol: float = 1e-6) -> list[dic
             if not np.any(d):                                 # a 0/1 design: small steps anyway
                 d = 0.01 * noise
             slope = float((np.zeros(rho.size) if rho_bar is None else rho_bar) @ d)
-            g = lambda r: phi(rho_=r, lam=lam)
+            g = lambda r, lam=lam: phi(rho_=r, lam=lam)
             eps, rem, rates = _scalar_taylor(g, rho, slope, d)
             cd = (g(rho + h * d) - g(rho - h * d)) / (2 * h)
             rows.append(check_row(f"{block.symbol or block.name}_rho", eps, rem, rates, relative_error(cd, slope),

@@ -1,6 +1,6 @@
 """Adjoint gradients over a block system: one adjoint solve per quantity, any blocks.
 
-For fields ``z_b`` with residuals ``R_b`` (see :mod:`tofsi.blocks`) and a
+For fields ``z_b`` with residuals ``R_b`` (see :mod:`tofsi.core.blocks`) and a
 quantity ``f(z, rho)`` with partials ``g_b = df/dz_b``, the multipliers solve
 
     (dR_b/dz_b)^T lam_b = -(g_b + sum_{c uses b} (dR_c/dz_b)^T lam_c),
@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 
 RESTARTS = 4         # GMRES runs of a partitioned cycle's adjoint, each checked against the true residual
 FLOOR = 1e-8         # the largest relative residual an adjoint accepts where the sweeps' own solves stop it

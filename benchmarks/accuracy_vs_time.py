@@ -59,8 +59,8 @@ MOVER_SETTINGS = {
 
 def move(problem, mover, extra):
     import tofsi
-    from tofsi.errors import NumericalError
-    from tofsi.motion import motion_setup, run_move
+    from tofsi.core.errors import NumericalError
+    from tofsi.coupling.motion import motion_setup, run_move
     scene_name, base = MOVER_PROBLEMS[problem]
     layers = ",".join(map(str, LAYERS[problem, mover]))
     scene = tofsi.load_scene(SCENES / f"{scene_name}.toml",
@@ -108,8 +108,8 @@ def flow_study(quick: bool) -> list[dict]:
     import dataclasses
 
     import tofsi
-    from tofsi.channel import build_mesh
-    from tofsi.mesh import SOLID
+    from tofsi.mesh.channel import build_mesh
+    from tofsi.mesh.structured import SOLID
     from tofsi.physics.flow import Flow
     from tofsi.physics.structure import Structure
     scene = tofsi.load_scene(SCENES / "beam_in_channel.toml")
@@ -136,7 +136,7 @@ def flow_study(quick: bool) -> list[dict]:
 # ---- coupling -------------------------------------------------------------------------
 def coupling_study(quick: bool) -> list[dict]:
     import tofsi
-    from tofsi.coupled import CoupledModel
+    from tofsi.coupling.coupled import CoupledModel
     base = ["mesh.h_min=0.05", "mesh.h_max=0.05", "effects.coupling=two-way", "mover.name=yeoh",
             "structure.youngs_modulus=5e5", "fluid.alpha_max=1e4"]
 
@@ -206,7 +206,7 @@ def element_case(problem: str, element: str, size) -> dict:
     """One forward solve of ``problem`` with ``element`` on mesh ``size`` (elements per unit
     length, or the foil's h_min): its quantity, solve time and element count."""
     import tofsi
-    from tofsi.coupled import CoupledModel
+    from tofsi.coupling.coupled import CoupledModel
     from tofsi.objectives.dissipation_strain import StrainDissipation
     scene_name, overrides, design, quantity, _, _ = ELEMENT_PROBLEMS[problem]
     mesh = ([f"mesh.h_min={size}", f"mesh.h_max={4 * size}"] if design is None
@@ -338,8 +338,8 @@ def recommendations(results: dict) -> list[str]:
 
 def report(out: Path, data: Path) -> None:
     """``accuracy_vs_time.md`` in ``out`` from the study CSVs in ``data`` (figures go to ``data``)."""
-    from tofsi.output import read_csv, write_text
-    from tofsi.plotting import pareto, plt, save
+    from tofsi.runs.output import read_csv, write_text
+    from tofsi.runs.plotting import pareto, plt, save
     results = {name: read_csv(data / f"{name}.csv") for name in STUDIES if (data / f"{name}.csv").exists()}
     rel = data.relative_to(out)
     lines = ["# What accuracy costs in time", "",
@@ -437,7 +437,7 @@ def report(out: Path, data: Path) -> None:
 
 def element_lines(rows: list[dict], data: Path, rel: Path) -> list[str]:
     """The elements study: a Pareto plot per problem, the table, and the errors at equal time."""
-    from tofsi.plotting import pareto, plt, save
+    from tofsi.runs.plotting import pareto, plt, save
     fig, axes = plt.subplots(1, len(ELEMENT_PROBLEMS), figsize=(14, 3.8), dpi=100)
     for ax, problem in zip(axes, ELEMENT_PROBLEMS):
         pareto(ax, [r for r in rows if r["problem"] == problem], "time_s", "error", "element",
@@ -484,7 +484,7 @@ def main() -> None:
     parser.add_argument("--docs", action="store_true", help="write docs/accuracy_vs_time.md and figures")
     parser.add_argument("--output", type=Path, default=Path("results/accuracy_vs_time"))
     args = parser.parse_args()
-    from tofsi.output import write_csv
+    from tofsi.runs.output import write_csv
     out = ROOT / "docs" if args.docs else args.output
     data = out / "img" / "accuracy" if args.docs else out
     for name in args.studies:

@@ -160,7 +160,7 @@ def main() -> None:
         row = run_case(h) if case == "beam" else run_fsi_case(h, case)
         print(json.dumps(row))
         return
-    from tofsi.output import write_json
+    from tofsi.runs.output import write_json
     print(f"machine: {platform.machine()}, Python {platform.python_version()}")
     print(f"{'scene':5s} {'coupling':9s} {'elements':>8s} {'cold':>7s} {'forward':>8s} {'adjoint':>8s}"
           f" {'adj/fwd':>8s} {'blocks':>7s} {'assembly':>8s} {'blk/asm':>8s} {'FD grad':>9s} {'2w/1w':>6s}")

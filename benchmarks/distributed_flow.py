@@ -40,10 +40,10 @@ def main() -> None:
 
     import tofsi
     from benchmarks.iterative_flow import design
-    from tofsi.channel import build_mesh
+    from tofsi.mesh.channel import build_mesh
     from tofsi.parallel.flow_system import DistributedFlow
     from tofsi.physics.flow import Flow
-    from tofsi.threads import set_blas_threads
+    from tofsi.linalg.threads import set_blas_threads
     set_blas_threads(1)
     comm = PETSc.COMM_WORLD.tompi4py()
     t0 = time.perf_counter()
@@ -60,7 +60,7 @@ def main() -> None:
     adjoint = {}
     if args.adjoint:
         from tofsi.parallel.flow_adjoint import SlabObjective
-        from tofsi.registry import OBJECTIVES
+        from tofsi.core.registry import OBJECTIVES
         SlabObjective(engine, OBJECTIVES.get("dissipation")()).gradient(rho, None)
         comm.Barrier()
         adjoint = {"adjoint_krylov": engine.transposed_iterations, "adjoint_s": time.perf_counter() - t2}

@@ -77,7 +77,7 @@ def topology(mesh, rho) -> str:
 def analyse(case: str, n: int, folder: Path) -> dict:
     """Figures of a finished run, and its design thresholded to 0/1 at the fluid bound."""
     import tofsi
-    from tofsi.optimize import non_discreteness
+    from tofsi.optimization.optimize import non_discreteness
     result = run(case, n, folder)
     scene = tofsi.load_scene(SCENES / f"{case}.toml", overrides(n))
     p = tofsi.Problem(scene)
@@ -106,7 +106,7 @@ def analyse(case: str, n: int, folder: Path) -> dict:
 def picture(case: str, n: int, folder: Path, out: Path) -> None:
     """A small picture of the design (black: solid) over the flow speed."""
     import tofsi
-    from tofsi.plotting import plot_design
+    from tofsi.runs.plotting import plot_design
     scene = tofsi.load_scene(SCENES / f"{case}.toml", overrides(n))
     p = tofsi.Problem(scene)
     p.set_stage(dataclasses.replace(p.params, brinkman_q=scene.design.brinkman_q[-1]))

@@ -31,7 +31,7 @@ SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "beam_in_c
 def design(mesh, beta: float, seed: int = 0):
     """A projected smooth random design (E,) in the design region, the fixed wall solid."""
     import numpy as np
-    from tofsi.mesh import DESIGN, SOLID
+    from tofsi.mesh.structured import DESIGN, SOLID
     c = mesh.centroids
     rng = np.random.default_rng(seed)
     k = rng.normal(size=(12, 2)) * 6.0
@@ -150,7 +150,7 @@ def main() -> None:
     parser.add_argument("--studies", nargs="+", default=["schur", "size", "alpha", "reynolds", "design"])
     parser.add_argument("--output", type=Path, default=Path("results/benchmarks"))
     args = parser.parse_args()
-    from tofsi.threads import set_blas_threads
+    from tofsi.linalg.threads import set_blas_threads
     set_blas_threads(1)
     base = dict(nx=80, alpha_max=1e5, density=1.0, beta=4.0)
     plans = {"size": [dict(base, nx=n) for n in args.sizes],

@@ -50,8 +50,8 @@ def main() -> None:
 
     import numpy as np
     from tofsi.linalg import DirectSolver, backends
-    from tofsi.output import write_json
-    from tofsi.threads import set_blas_threads, solver_threads
+    from tofsi.runs.output import write_json
+    from tofsi.linalg.threads import set_blas_threads, solver_threads
 
     set_blas_threads(1)
     backends.set_threads(solver_threads(args.threads))

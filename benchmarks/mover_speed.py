@@ -47,9 +47,9 @@ def run_case(refine: float, case: str, solver: str) -> dict:
 
     import tofsi
     from tofsi.linalg import make_solver, rigid_body_modes
-    from tofsi.motion import motion_setup, run_move
+    from tofsi.coupling.motion import motion_setup, run_move
 
-    from tofsi.threads import configure
+    from tofsi.linalg.threads import configure
 
     scene = tofsi.load_scene(SCENE, overrides(refine, "linear" if case == "solve" else case, solver))
     configure(scene.solver)                  # backend and BLAS threads, as `tofsi move` sets them
@@ -108,7 +108,7 @@ def main() -> None:
         print(json.dumps(run_case(args.one, args.case, args.solver)))
         return
 
-    from tofsi.output import write_json
+    from tofsi.runs.output import write_json
     rows = []
     print(f"machine: {platform.processor() or platform.machine()}, {platform.python_version()}")
     head = f"{'solver':7s} {'nodes':>8s} {'solve':>8s} {'linear':>8s} {'spring':>8s} {'yeoh':>8s}" \
@@ -134,7 +134,7 @@ def main() -> None:
 def plot(rows, path) -> None:
     import numpy as np
 
-    from tofsi.plotting import plt, save
+    from tofsi.runs.plotting import plt, save
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110, sharey=True)
     for ax, solver in zip(axes, ("direct", "amg")):
         sel = [r for r in rows if r["solver"] == solver]

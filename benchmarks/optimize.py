@@ -93,8 +93,8 @@ def main() -> None:
     args = parser.parse_args()
 
     import tofsi
-    from tofsi.optimize import Optimizer
-    from tofsi.output import write_json
+    from tofsi.optimization.optimize import Optimizer
+    from tofsi.runs.output import write_json
 
     h = 2.0 / args.elements_x
     sets = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"optimizer.max_iter={args.iterations}",

@@ -81,7 +81,7 @@ def run(problem: str, variant: str, output: Path) -> dict:
 def final_problem(problem: str, variant: str):
     """The variant's design problem at its last continuation stage."""
     import tofsi
-    from tofsi.coupled import continuation
+    from tofsi.coupling.coupled import continuation
     scene_name, _, _, variants = PROBLEMS[problem]
     scene = tofsi.load_scene(SCENES / f"{scene_name}.toml", variants[variant])
     p = tofsi.Problem(scene)
@@ -113,7 +113,7 @@ def objective_of(p, rho) -> float:
 
 def analyse(problem: str, variant: str, output: Path) -> dict | None:
     """A finished run's figures (None when the variant has not been run)."""
-    from tofsi.optimize import non_discreteness
+    from tofsi.optimization.optimize import non_discreteness
     path = folder(output, problem, variant) / "result.json"
     if not path.is_file():
         return None
@@ -142,7 +142,7 @@ def cross_scores(problem: str, output: Path, variants) -> list[dict]:
 
 def pictures(problem: str, variants, output: Path, out: Path) -> Path:
     """The variants' designs side by side (black: solid), one panel each."""
-    from tofsi.plotting import plt, save
+    from tofsi.runs.plotting import plt, save
     fig, axes = plt.subplots(1, len(variants), figsize=(3.3 * len(variants), 3.4), dpi=100, squeeze=False)
     for ax, variant in zip(axes[0], variants):
         p = final_problem(problem, variant)

@@ -44,13 +44,13 @@ from pathlib import Path
 import numpy as np
 
 import tofsi
-from tofsi.blocks import State
-from tofsi.coupled import continuation
-from tofsi.errors import NumericalError
-from tofsi.optimize import Optimizer
-from tofsi.output import write_json, write_text
-from tofsi.resume import read_checkpoint
-from tofsi.tuning import tune
+from tofsi.core.blocks import State
+from tofsi.coupling.coupled import continuation
+from tofsi.core.errors import NumericalError
+from tofsi.optimization.optimize import Optimizer
+from tofsi.runs.output import write_json, write_text
+from tofsi.optimization.resume import read_checkpoint
+from tofsi.optimization.tuning import tune
 
 SCENE = Path(__file__).parent / "scenes" / "beam_in_channel_optimization_large.toml"
 SMALL = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.2", "optimizer.max_iter=8",
@@ -195,7 +195,7 @@ def pictures(rows: list[dict], path: Path) -> None:
     """Every finished run's final density, side by side (movers across, the other choices down)."""
     import matplotlib.pyplot as plt
 
-    from tofsi.plotting import save
+    from tofsi.runs.plotting import save
     scene = tofsi.load_scene(SCENE, base())
     problem = tofsi.Problem(scene)
     problem.set_stage(continuation(scene, scene.design.n_stages - 1))

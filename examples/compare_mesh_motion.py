@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 import tofsi
-from tofsi.optimize import Optimizer, non_discreteness
-from tofsi.plotting import plot_design, region_outlines
+from tofsi.optimization.optimize import Optimizer, non_discreteness
+from tofsi.runs.plotting import plot_design, region_outlines
 
 SCENE = Path(__file__).parent / "scenes" / "beam_in_channel_optimization_fsi.toml"
 SMALL = os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0"

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import tofsi
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.physics.structure import Structure
 
 SCENE = Path(__file__).resolve().parent / "scenes" / "beam_in_channel_optimization_fsi.toml"

@@ -35,10 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tofsi.motion import move_figures
-from tofsi.output import write_csv, write_text
-from tofsi.plotting import plot_sweep
-from tofsi.study import Sweep, best, run_study
+from tofsi.coupling.motion import move_figures
+from tofsi.runs.output import write_csv, write_text
+from tofsi.runs.plotting import plot_sweep
+from tofsi.optimization.study import Sweep, best, run_study
 
 SCENES = Path(__file__).parent / "scenes"
 PROBLEMS = {

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import movers
 import tofsi
-from tofsi.errors import NumericalError
-from tofsi.motion import moved_quality, motion_setup, run_move
-from tofsi.output import write_csv
+from tofsi.core.errors import NumericalError
+from tofsi.coupling.motion import moved_quality, motion_setup, run_move
+from tofsi.runs.output import write_csv
 
 HERE = Path(__file__).parent
 MESH = ["mesh.h_min=0.05", "mesh.h_max=0.1"] if os.environ.get("TOFSI_EXAMPLE_SMALL", "0") != "0" else []

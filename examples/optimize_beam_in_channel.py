@@ -27,11 +27,11 @@ from pathlib import Path
 import tofsi
 from tofsi.commands.context import RunContext
 from tofsi.commands.optimize import Pictures
-from tofsi.errors import InputError, WriteError
-from tofsi.optimize import Optimizer
-from tofsi.plotting import plot_convergence
-from tofsi.provenance import run_record
-from tofsi.run_folder import RunFolder
+from tofsi.core.errors import InputError, WriteError
+from tofsi.optimization.optimize import Optimizer
+from tofsi.runs.plotting import plot_convergence
+from tofsi.runs.provenance import run_record
+from tofsi.runs.run_folder import RunFolder
 
 SCENE = Path(__file__).parent / "scenes" / "beam_in_channel_optimization.toml"
 SMALL = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.15", "optimizer.max_iter=6",

@@ -8,9 +8,9 @@ that page, e.g. ``docs/mesh_motion_study.md``):
 * ``tuning`` -- the four problems x three movers on the graded meshes: minimum skewness
   with (a) no stiffening, (b) the best point of the two-layer grid search of
   ``mesh_motion_study.py`` (coarse 1 to 6 by 0.5, then best +- 0.5 by 0.1; its moves
-  counted), (c) :func:`tofsi.tuning.tune` given a tenth of the grid's mover solves
+  counted), (c) :func:`tofsi.optimization.tuning.tune` given a tenth of the grid's mover solves
   (forward moves and adjoint solves together), (d) the paper's best column (Table 3);
-* ``band`` -- full domain against the automatic band (:mod:`tofsi.band`) and a
+* ``band`` -- full domain against the automatic band (:mod:`tofsi.mesh.band`) and a
   narrower one: the 8 degree foil rotation of ``benchmarks/mover_speed.py`` at its mesh
   sizes (each mover: minimum skewness, minimum / maximum area change, time of the
   mesh motion, setup of the band included), and the twelve problem x mover cases;
@@ -54,12 +54,12 @@ from pathlib import Path
 import numpy as np
 
 import tofsi
-from tofsi.errors import NumericalError
-from tofsi.motion import moved_quality, motion_setup
-from tofsi.output import read_csv, write_csv, write_text
+from tofsi.core.errors import NumericalError
+from tofsi.coupling.motion import moved_quality, motion_setup
+from tofsi.runs.output import read_csv, write_csv, write_text
 from tofsi.physics.mesh_motion import MeshMotion
-from tofsi.study import best
-from tofsi.tuning import tune
+from tofsi.optimization.study import best
+from tofsi.optimization.tuning import tune
 
 from mesh_motion_study import MESHES, MOVERS, PROBLEMS, SCENES, Study, two_layer_grid  # its sibling script
 

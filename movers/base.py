@@ -10,7 +10,7 @@ are told, and returns the displacement of every node with a report.
 
 Nodes not used by any moving quad are held at their prescribed value.
 A mover that cannot deliver a valid mesh raises
-:class:`tofsi.errors.NumericalError` (exit status 3) whose diagnostic holds
+:class:`tofsi.core.errors.NumericalError` (exit status 3) whose diagnostic holds
 the report so far and the worst element.
 """
 
@@ -28,8 +28,8 @@ import numpy as np
 
 from movers.blend import Blend, node_scale
 from movers.failure import at
-from tofsi import quality
-from tofsi.errors import NumericalError
+from tofsi.mesh import quality
+from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.complex_step import derivative
 from tofsi.fem.dirichlet import DirichletOperator

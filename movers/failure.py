@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofsi import quality
+from tofsi.mesh import quality
 
 
 def at(location) -> str:

@@ -16,8 +16,8 @@ import numpy as np
 
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult
 from movers.incremental import increments_vjp, run_increments
-from tofsi.config import option
-from tofsi.errors import NumericalError
+from tofsi.core.config import option
+from tofsi.core.errors import NumericalError
 from tofsi.fem.elasticity import element_stiffness, lame
 
 

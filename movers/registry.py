@@ -5,8 +5,8 @@ from __future__ import annotations
 import importlib
 from importlib.metadata import entry_points
 
-from tofsi.config import build
-from tofsi.errors import InputError
+from tofsi.core.config import build
+from tofsi.core.errors import InputError
 
 _BUILTIN = {
     "linear": "movers.linear:LinearElasticMover",

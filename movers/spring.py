@@ -25,9 +25,9 @@ import numpy as np
 from movers.base import MotionProblem, Mover, MoveReport, MoveResult
 from movers.incremental import increment, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, quad_stiffness
-from tofsi import quality
-from tofsi.config import option
-from tofsi.errors import NumericalError
+from tofsi.mesh import quality
+from tofsi.core.config import option
+from tofsi.core.errors import NumericalError
 
 CHOICES = ("1-3", "2-4", "both", "selective")
 

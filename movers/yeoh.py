@@ -41,11 +41,11 @@ from movers.base import MotionProblem, Mover, MoveReport, MoveResult, element_ap
 from movers.failure import Trouble, broken_element, describe_break
 from movers.incremental import system
 from movers.yeoh_kernel import YeohKernel
-from tofsi import quality
-from tofsi.config import option
-from tofsi.errors import NumericalError
+from tofsi.mesh import quality
+from tofsi.core.config import option
+from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
-from tofsi.iteration import forcing_term
+from tofsi.core.iteration import forcing_term
 from tofsi.linalg import RecyclingSolver
 
 log = logging.getLogger(__name__)

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 import tofsi
-from tofsi.channel import build_mesh
+from tofsi.mesh.channel import build_mesh
 
 SCENES = Path(__file__).resolve().parents[1] / "examples" / "scenes"
 MOTION_SCENES = ["beam_in_channel", "foil_in_channel"]

@@ -5,7 +5,7 @@ import numpy as np
 from tofsi.fem.geometry import map_points, physical_gradients
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.mesh.structured import StructuredQuadMesh
 
 PI = np.pi
 

@@ -9,7 +9,7 @@ import numpy as np
 from petsc4py import PETSc
 
 import tofsi
-from tofsi.coupled import CoupledModel
+from tofsi.coupling.coupled import CoupledModel
 from tofsi.linalg import backends
 
 out, overrides = sys.argv[1], sys.argv[2:]

@@ -11,8 +11,8 @@ import pytest
 import tofsi
 from adjoint import Adjoint
 from adjoint.checks import central_difference, relative_error
-from tofsi.design import DensityFilter, DesignMap, Projection
-from tofsi.errors import NumericalError
+from tofsi.optimization.design import DensityFilter, DesignMap, Projection
+from tofsi.core.errors import NumericalError
 
 from conftest import load
 from gradient_checks import check_total_derivative
@@ -94,8 +94,9 @@ def test_dropping_a_coupling_block_breaks_the_taylor_test(block, monkeypatch):
     """The check has teeth: without S_x (or F_x) the remainder falls only like eps."""
     P = problem("effects.coupling=two-way", *MOVERS["yeoh"], "structure.youngs_modulus=3e3")
     gamma, d = design_and_direction(P, False, seed=3)
-    from tofsi.physics import fields
-    cls = fields.StructureLinearization if block == "S_x" else fields.FlowLinearization
+    from tofsi.fields.flow import FlowLinearization
+    from tofsi.fields.structure import StructureLinearization
+    cls = StructureLinearization if block == "S_x" else FlowLinearization
     original = cls.coupling
     monkeypatch.setattr(cls, "coupling", lambda self, other: 0 * original(self, other)
                         if other == "x" else original(self, other))
@@ -173,7 +174,7 @@ def test_check_gradients_command_passes_and_fails_with_status_1(tmp_path, monkey
     out = json.loads(capsys.readouterr().out)
     assert out["passed"] and {r["check"] for r in out["checks"]} >= {"F_w", "S_u", "S_w", "S_rho",
                                                                       "objective compliance"}
-    from tofsi.physics.fields import StructureLinearization
+    from tofsi.fields.structure import StructureLinearization
     original = StructureLinearization.transpose_partials
 
     def wrong_S_rho(self, lam):                       # S_rho 1 % too large

@@ -172,9 +172,9 @@ def test_overlapping_solids_merge_into_their_union():
     (the overlap counted once), and the result equals the single-rectangle scene's."""
     import numpy as np
     import tofsi as toolkit
-    from tofsi.channel import build_mesh
-    from tofsi.mesh import SOLID
-    from tofsi.quality import signed_area
+    from tofsi.mesh.channel import build_mesh
+    from tofsi.mesh.structured import SOLID
+    from tofsi.mesh.quality import signed_area
 
     def solid_area(solids):
         scene = toolkit.load_scene(FOIL, [f"geometry.solids={solids}", "mesh.h_min=0.025", "mesh.h_max=0.05"])
@@ -386,8 +386,8 @@ def test_the_lock_of_a_killed_run_is_taken_over(tmp_path):
 
 
 def test_one_process_cannot_lock_a_folder_twice(tmp_path):
-    from tofsi.errors import InputError
-    from tofsi.run_folder import RunFolder
+    from tofsi.core.errors import InputError
+    from tofsi.runs.run_folder import RunFolder
     first = RunFolder(tmp_path / "o", program="a").check()
     with pytest.raises(InputError, match="in this process"):
         RunFolder(tmp_path / "o", program="b").check()
@@ -412,8 +412,8 @@ def test_non_finite_and_oversized_sweeps_are_refused_at_once(sweep, says, tmp_pa
 
 
 def test_a_grid_of_too_many_points_is_refused_before_it_is_made():
-    from tofsi.errors import InputError
-    from tofsi.study import Sweep, points
+    from tofsi.core.errors import InputError
+    from tofsi.optimization.study import Sweep, points
     sweeps = [Sweep(f"k{i}", tuple(range(1000))) for i in range(3)]          # 10^9 points
     with pytest.raises(InputError, match="1,000,000,000 points"):
         points(sweeps)
@@ -504,8 +504,8 @@ def test_a_failed_two_way_solve_names_the_element_the_predictor_inverts(tmp_path
     import json
     import re
     import tofsi as toolkit
-    from tofsi.channel import build_mesh
-    from tofsi.mesh import SOLID
+    from tofsi.mesh.channel import build_mesh
+    from tofsi.mesh.structured import SOLID
     mesh_args = ["mesh.h_min=0.05", "mesh.h_max=0.05", "structure.youngs_modulus=5"]
     run = tofsi(["solve", FSI, "--stage", "last", "--output", "out", *[a for o in mesh_args for a in ("--set", o)]],
                 tmp_path)
@@ -553,8 +553,8 @@ def test_the_readme_exit_status_table_lists_every_status():
     statuses) has a row in README's table, and the table has no other."""
     import re
     from pathlib import Path
-    from tofsi import errors
-    from tofsi.run_folder import STATUS
+    from tofsi.core import errors
+    from tofsi.runs.run_folder import STATUS
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     rows = {int(m) for m in re.findall(r"^\| (\d+) \| ", readme, flags=re.M)}
     raised = {cls.exit_status for cls in (errors.InputError, errors.NumericalError, errors.WriteError)}

@@ -5,9 +5,9 @@ import pytest
 
 import tofsi
 from adjoint.checks import central_difference, relative_error
-from tofsi.errors import InputError
-from tofsi.mesh import SOLID
-from tofsi.motion import moved_quality, motion_setup, run_move
+from tofsi.core.errors import InputError
+from tofsi.mesh.structured import SOLID
+from tofsi.coupling.motion import moved_quality, motion_setup, run_move
 
 from conftest import load
 from gradient_checks import check_total_derivative

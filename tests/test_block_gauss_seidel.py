@@ -98,7 +98,7 @@ def test_a_newton_whose_block_gmres_fails_falls_back_to_the_whole_jacobians_lu(m
     """A block preconditioner that does nothing, GMRES allowed one iteration: the Newton's first
     step fails, the Newton factorizes the whole Jacobian instead, says so, and lands on the
     same state."""
-    import tofsi.block_system as block_system
+    import tofsi.coupling.block_system as block_system
 
     class Useless(BlockGaussSeidel):
         setup_iterations = 0

@@ -19,8 +19,8 @@ import scipy.sparse as sp
 
 from adjoint import Adjoint
 from adjoint.checks import check_blocks, taylor_test
-from tofsi.blocks import FieldBlock, Linearization
-from tofsi.coupled import CoupledModel
+from tofsi.core.blocks import FieldBlock, Linearization
+from tofsi.coupling.coupled import CoupledModel
 from tofsi.linalg import DirectSolver
 from tofsi.objectives.compliance import Compliance
 

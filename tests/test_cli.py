@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import ALL_SCENES, load, scene_path
-from tofsi.channel import build_mesh
+from tofsi.mesh.channel import build_mesh
 
 
 def tofsi(*args, cwd=None):

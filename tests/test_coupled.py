@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from tofsi.coupled import CoupledModel
-from tofsi.errors import InputError
+from tofsi.coupling.coupled import CoupledModel
+from tofsi.core.errors import InputError
 from tofsi.physics.mesh_motion import MeshMotion, solid_indicator
 
 from conftest import load, scene_path
@@ -62,7 +62,7 @@ def test_mesh_motion_blocks_match_central_differences(name, extra, design):
     scene_name = "beam_in_channel_optimization" if design else "beam_in_channel"
     scene = load(scene_name, "mesh.h_min=0.1", "mesh.h_max=0.2", f"mover.name={name}", *extra,
                  "mover.layers=[1.7]")
-    from tofsi.channel import build_mesh
+    from tofsi.mesh.channel import build_mesh
     mesh = build_mesh(scene.geometry, scene.mesh)
     motion = MeshMotion(mesh, scene)
     rng = np.random.default_rng(41)
@@ -103,7 +103,7 @@ def test_a_mesh_motion_study_never_assembles_a_fluid_matrix_even_when_the_scene_
     """``move`` of a scene with a fluid effect moves the mesh without a flow solve; the spy has
     teeth: the ``fsi`` motion of the same kind of study does solve the flow through it."""
     import tofsi.physics.fluid_kernel as kernel
-    from tofsi.motion import run_move
+    from tofsi.coupling.motion import run_move
     calls, element = [], kernel.fluid_elements
     monkeypatch.setattr(kernel, "fluid_elements", lambda *a, **k: calls.append(1) or element(*a, **k))
     scene = load("foil_in_channel", "effects.fluid=navier-stokes", "effects.structure=linear-elastic",
@@ -138,7 +138,7 @@ def test_stokes_effect_drops_inertia_and_structure_off_drops_the_structure():
 
 def test_fsi_deformation_bends_the_beam_downstream_to_the_requested_tip():
     scene = load("beam_in_channel", "deformation.mode=fsi", "mesh.h_min=0.025", "mesh.h_max=0.1")
-    from tofsi.motion import motion_setup
+    from tofsi.coupling.motion import motion_setup
     setup = motion_setup(scene)
     u = setup.prescribed
     assert np.max(np.linalg.norm(u, axis=1)) == pytest.approx(0.15, rel=1e-12)

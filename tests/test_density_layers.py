@@ -1,7 +1,7 @@
 """Density-dependent layered stiffening: layers grown from the densities by smooth dilation.
 
 For 0/1 densities the layers are exactly the breadth-first element layers of the fixed solid
-(tofsi.layers, an independent algorithm); for gray densities the factors are smooth, and the
+(tofsi.mesh.layers, an independent algorithm); for gray densities the factors are smooth, and the
 gradient through them is exact (central differences, and two-way Taylor tests per mover).
 """
 
@@ -10,9 +10,9 @@ import pytest
 
 import tofsi
 from adjoint.checks import taylor_test
-from tofsi.channel import build_mesh
-from tofsi.layers import element_layers, stiffening_field
-from tofsi.mesh import SOLID
+from tofsi.mesh.channel import build_mesh
+from tofsi.mesh.layers import element_layers, stiffening_field
+from tofsi.mesh.structured import SOLID
 from tofsi.physics.indicators import DensityLayers
 
 from conftest import load

@@ -13,13 +13,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import lame
-from tofsi.interpolation import SIMP
+from tofsi.physics.interpolation import SIMP
 from tofsi.linalg import DirectSolver, nested_dissection
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.physics.finite_strain import FiniteStrainElasticity
 
 

@@ -115,7 +115,7 @@ def test_check_gradients_command_on_a_coarse_two_way_scene(tmp_path, monkeypatch
 def test_a_resumed_finite_strain_optimization_reproduces_the_history_exactly(tmp_path):
     """Newton warm-starts from the previous design's state; the replay makes the same starts (E = 1e5:
     the gray start moves 0.36 m)."""
-    from tofsi.optimize import Optimizer
+    from tofsi.optimization.optimize import Optimizer
     from conftest import scene_path
     overrides = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.25", "optimizer.max_iter=10",
                  "design.stage_iterations=6", "structure.model=neo-hookean", "structure.youngs_modulus=1e5",

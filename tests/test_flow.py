@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from flow_cases import Kovasznay, Manufactured, errors, rates, unit_square
-from tofsi.errors import NumericalError
-from tofsi.grading import graded_axis
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.core.errors import NumericalError
+from tofsi.mesh.grading import graded_axis
+from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.physics.flow import Flow
-from tofsi.settings import FluidSettings
+from tofsi.fields.flow import FluidSettings
 
 
 def graded_channel():
@@ -97,7 +97,7 @@ def block_channel(alpha_max, density=1.0):
 
 def solid_interior_speed(mesh, flow, w, rho, depth):
     """Largest speed at Q2 nodes all of whose elements are solid and ``depth`` layers deep."""
-    from tofsi.layers import element_layers
+    from tofsi.mesh.layers import element_layers
     solid = rho >= 1
     boundary = np.unique(mesh.quads[~solid])
     layer = element_layers(mesh.incidence, boundary, solid)
@@ -132,8 +132,8 @@ def test_velocity_inside_the_beam_is_below_a_millionth_of_the_inflow():
     """
     import dataclasses
     import tofsi
-    from tofsi.channel import build_mesh
-    from tofsi.mesh import SOLID
+    from tofsi.mesh.channel import build_mesh
+    from tofsi.mesh.structured import SOLID
     from conftest import scene_path
     scene = tofsi.load_scene(scene_path("beam_in_channel"))
     mesh = build_mesh(scene.geometry, scene.mesh)

@@ -4,12 +4,12 @@ openings on two sides, exact segment pressure means, the older keys unchanged, b
 import numpy as np
 import pytest
 
-from tofsi.config import build
-from tofsi.errors import InputError
-from tofsi.mesh import SIDES, StructuredQuadMesh
+from tofsi.core.config import build
+from tofsi.core.errors import InputError
+from tofsi.mesh.structured import SIDES, StructuredQuadMesh
 from tofsi.physics.flow import Flow
 from tofsi.physics.flow_boundary import INWARD, segment_weights, side_coordinate
-from tofsi.settings import FluidSettings
+from tofsi.fields.flow import FluidSettings
 
 OPPOSITE = {"left": "right", "right": "left", "bottom": "top", "top": "bottom"}
 

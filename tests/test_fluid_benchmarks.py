@@ -16,7 +16,7 @@ import pytest
 import tofsi
 from tofsi.cli import main
 from tofsi.objectives.dissipation_strain import StrainDissipation
-from tofsi.optimize import Optimizer
+from tofsi.optimization.optimize import Optimizer
 
 from conftest import load, scene_path
 from gradient_checks import check_total_derivative

@@ -14,8 +14,8 @@ import sys
 import numpy as np
 import pytest
 
-from tofsi.coupled import CoupledModel
-from tofsi.mesh import SOLID
+from tofsi.coupling.coupled import CoupledModel
+from tofsi.mesh.structured import SOLID
 
 from conftest import load, scene_path
 from no_slip import NoSlipReference

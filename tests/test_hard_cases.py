@@ -10,10 +10,10 @@ import pytest
 import movers
 import tofsi
 from movers.base import MotionProblem
-from tofsi import quality
-from tofsi.errors import NumericalError
-from tofsi.mesh import StructuredQuadMesh
-from tofsi.motion import run_move
+from tofsi.mesh import quality
+from tofsi.core.errors import NumericalError
+from tofsi.mesh.structured import StructuredQuadMesh
+from tofsi.coupling.motion import run_move
 
 from conftest import load, scene_path
 
@@ -28,7 +28,7 @@ def move_or_fail(scene):
 
 
 def setup_of(scene):
-    from tofsi.motion import motion_setup
+    from tofsi.coupling.motion import motion_setup
     return motion_setup(scene)
 
 

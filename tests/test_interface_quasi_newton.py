@@ -1,4 +1,4 @@
-"""The interface quasi-Newton update (tofsi.iteration.InterfaceQuasiNewton) of a fixed point.
+"""The interface quasi-Newton update (tofsi.core.iteration.InterfaceQuasiNewton) of a fixed point.
 
 Truths: on an affine map ``H(x) = G x + c`` the multi-secant model is exact on the differences
 it has seen, so after ``n + 1`` sweeps of an ``n``-dimensional map the iterate is the fixed point
@@ -8,7 +8,7 @@ sweep diverges; a nonlinear map converges superlinearly.
 
 import numpy as np
 
-from tofsi.iteration import InterfaceQuasiNewton
+from tofsi.core.iteration import InterfaceQuasiNewton
 
 
 def affine(n: int, spectral_radius: float, seed: int = 0):

@@ -15,10 +15,10 @@ import scipy.sparse as sp
 import tofsi
 from tofsi.linalg import DirectSolver, RecyclingSolver
 from tofsi.linalg.iterative import TRANSPOSE_TOL, BlockSaddlePreconditioner
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.physics.flow import Flow
 from tofsi.physics.flow_preconditioner import flow_preconditioner, schur_parts
-from tofsi.settings import FluidSettings
+from tofsi.fields.flow import FluidSettings
 
 SCENE = "examples/scenes/beam_in_channel_optimization.toml"
 

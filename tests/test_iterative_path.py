@@ -15,7 +15,7 @@ import tofsi
 from adjoint.checks import taylor_test
 from tofsi.linalg import AMGSolver
 from tofsi.linalg.iterative import BlockSaddlePreconditioner
-from tofsi.optimize import Optimizer
+from tofsi.optimization.optimize import Optimizer
 
 from conftest import load
 

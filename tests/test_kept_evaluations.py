@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import tofsi
-from tofsi.blocks import Continuation
-from tofsi.coupled import CoupledModel
+from tofsi.core.blocks import Continuation
+from tofsi.coupling.coupled import CoupledModel
 from tofsi.physics.flow import Flow
 from tofsi.physics.fluid_load import FluidForce
 

@@ -14,9 +14,9 @@ import pytest
 
 import tofsi
 from adjoint.checks import check_totals
-from tofsi.coupled import CoupledModel, continuation
-from tofsi.errors import NumericalError
-from tofsi.optimize import Optimizer
+from tofsi.coupling.coupled import CoupledModel, continuation
+from tofsi.core.errors import NumericalError
+from tofsi.optimization.optimize import Optimizer
 
 from conftest import load, scene_path
 
@@ -153,8 +153,8 @@ def test_a_failing_first_design_of_a_later_stage_is_bridged_halfway_and_the_run_
 
 
 def test_bridge_takes_every_continued_parameter_halfway():
-    from tofsi.blocks import Continuation
-    from tofsi.stages import bridge
+    from tofsi.core.blocks import Continuation
+    from tofsi.optimization.stages import bridge
     a, b = Continuation(beta=4.0, penalty=3.0, brinkman_q=0.0), Continuation(beta=16.0, penalty=3.0,
                                                                             brinkman_q=0.1, coupling="two-way")
     assert bridge(a, b) == Continuation(beta=8.0, penalty=3.0, brinkman_q=0.05, coupling="two-way")

@@ -22,8 +22,8 @@ import pytest
 import scipy.sparse as sp
 
 import tofsi
-from tofsi.coupled import CoupledModel
-from tofsi.errors import InputError
+from tofsi.coupling.coupled import CoupledModel
+from tofsi.core.errors import InputError
 from tofsi.linalg import AMGSolver, DirectSolver, RecyclingSolver, backends, nested_dissection
 from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
@@ -226,7 +226,7 @@ def test_resume_is_bitwise_exact_with_pardiso(tmp_path):
     (MKL_CBWR=AUTO,STRICT), so an interrupted and resumed optimization repeats the full one
     bit for bit, as with SuperLU (tests/test_optimize.py)."""
     backend_or_skip("pardiso")
-    from tofsi.optimize import Optimizer
+    from tofsi.optimization.optimize import Optimizer
     sets = ["mesh.h_min=0.05", "mesh.h_max=0.05", "design.filter_radius=0.15", "optimizer.max_iter=8",
             "design.stage_iterations=4", "solver.linear_solver=pardiso", "solver.threads=2"]
 

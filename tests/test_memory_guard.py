@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 
 import tofsi
-from tofsi import memory
+from tofsi.runs import memory
 from tofsi.cli import main
-from tofsi.coupled import CoupledModel
+from tofsi.coupling.coupled import CoupledModel
 
 SCENE = "examples/scenes/beam_in_channel_optimization.toml"
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,7 +60,7 @@ def test_estimate_within_a_factor_1_5_of_the_measured_peak(element):
     h = 2.0 / 90
     overrides = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"fluid.element={element}"]
     code = (
-        "import json, re, tofsi; from tofsi.coupled import CoupledModel\n"
+        "import json, re, tofsi; from tofsi.coupling.coupled import CoupledModel\n"
         f"s = tofsi.load_scene({SCENE!r}, {overrides!r})\n"
         "m = CoupledModel(s); m.solve(m.densities())\n"
         "hwm = re.search(r'VmHWM:\\s+(\\d+) kB', open('/proc/self/status').read()).group(1)\n"

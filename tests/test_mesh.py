@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from tofsi import quality
-from tofsi.channel import build_mesh, inside
-from tofsi.grading import graded_axis
-from tofsi.layers import element_layers, stiffening_field
-from tofsi.mesh import DESIGN, FLUID, SOLID, StructuredQuadMesh
+from tofsi.mesh import quality
+from tofsi.mesh.channel import build_mesh, inside
+from tofsi.mesh.grading import graded_axis
+from tofsi.mesh.layers import element_layers, stiffening_field
+from tofsi.mesh.structured import DESIGN, FLUID, SOLID, StructuredQuadMesh
 
 from conftest import load
 

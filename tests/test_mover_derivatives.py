@@ -14,7 +14,7 @@ import pytest
 
 import movers
 from movers.base import MotionProblem
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.mesh.structured import StructuredQuadMesh
 
 CASES = [("yeoh", {"A20": 50.0, "kappa": 2.0, "newton_tol": 1e-13}),
          ("linear", {"increments": 1}),

@@ -11,10 +11,10 @@ import pytest
 import movers
 from movers.base import MotionProblem
 from reference_kernels import elastic_quad
-from tofsi import quality
-from tofsi.errors import InputError, NumericalError
-from tofsi.mesh import StructuredQuadMesh
-from tofsi.motion import motion_setup, run_move
+from tofsi.mesh import quality
+from tofsi.core.errors import InputError, NumericalError
+from tofsi.mesh.structured import StructuredQuadMesh
+from tofsi.coupling.motion import motion_setup, run_move
 from tofsi.fem.elasticity import element_stiffness, lame
 
 from conftest import load, scene_path

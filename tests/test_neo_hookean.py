@@ -20,8 +20,8 @@ from reference_kernels import GAUSS2, q1_at
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.fem.neo_hookean import NeoHookeanKernel, NonlinearWeight
-from tofsi.interpolation import SIMP
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.physics.interpolation import SIMP
+from tofsi.mesh.structured import StructuredQuadMesh
 
 NU = 0.3
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tofsi.oc import oc_step
+from tofsi.optimization.oc import oc_step
 
 
 @pytest.mark.parametrize("solid_bound", [True, False])

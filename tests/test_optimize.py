@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import tofsi
-from tofsi.optimize import Optimizer, non_discreteness
+from tofsi.optimization.optimize import Optimizer, non_discreteness
 
 from conftest import scene_path
 
@@ -78,7 +78,7 @@ def test_resume_after_an_interruption_reproduces_the_history_exactly(tmp_path):
 
 
 def test_resume_without_a_checkpoint_is_an_input_error(tmp_path):
-    from tofsi.errors import InputError
+    from tofsi.core.errors import InputError
     with pytest.raises(InputError, match="no checkpoint"):
         run(tmp_path / "none", resume=True)
 

@@ -5,7 +5,7 @@ import os
 import pytest
 
 import tofsi
-from tofsi.output_size import CLEARLY_SHORT, estimate
+from tofsi.runs.output_size import CLEARLY_SHORT, estimate
 
 from conftest import scene_path
 

@@ -128,7 +128,7 @@ def test_mma_on_rank_zero_follows_the_serial_optimizer(tmp_path):
     """``mpiexec -n 2 python -m tofsi.parallel.optimize_flow`` (MMA on rank 0, the design
     broadcast, the flow and its adjoint by slabs) for 4 evaluations of the pipe bend at Re 10
     with a filter, three in the first stage (Brinkman q 0.01) and one in the second (q 0.1, its
-    record broadcast): the objective history equals the serial :class:`tofsi.optimize.Optimizer`'s
+    record broadcast): the objective history equals the serial :class:`tofsi.optimization.optimize.Optimizer`'s
     on the same scene to 1e-6 relative (measured 3.2e-10), the written design too; outputs
     are written once, by rank 0."""
     sets = [*NAVIER_STOKES, "design.filter_radius=0.1", "design.stage_iterations=3"]
@@ -137,7 +137,7 @@ def test_mma_on_rank_zero_follows_the_serial_optimizer(tmp_path):
                      "--iterations", "4", "--out", str(out), "--amg", "gamg")
     import json
 
-    from tofsi.optimize import Optimizer
+    from tofsi.optimization.optimize import Optimizer
     serial = Optimizer(tofsi.Problem(tofsi.load_scene(PIPE_BEND, [*sets, "optimizer.max_iter=4"])),
                        tmp_path / "serial")
     result = serial.run()
@@ -164,7 +164,7 @@ def test_mma_on_rank_zero_follows_the_serial_optimizer(tmp_path):
 ])
 def test_the_distributed_optimizer_refuses_what_it_cannot_do_before_needing_petsc(scene, sets, key):
     """A scene the distributed optimizer cannot run is refused by name, with or without petsc4py."""
-    from tofsi.errors import InputError
+    from tofsi.core.errors import InputError
     from tofsi.parallel.flow_problem import DistributedFlowProblem
     from tofsi.parallel.optimize_flow import check
     loaded = tofsi.load_scene(scene, ["mesh.h_min=0.1", "mesh.h_max=0.1", *sets])

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import tofsi
-import tofsi.plotting as plotting
-from tofsi.registry import OBJECTIVES
-from tofsi.channel import build_mesh
+import tofsi.runs.plotting as plotting
+from tofsi.core.registry import OBJECTIVES
+from tofsi.mesh.channel import build_mesh
 from tofsi.commands.context import RunContext
 from tofsi.commands.optimize import Pictures
 
@@ -168,7 +168,7 @@ def legend_texts(fig) -> list[str]:
 def test_the_outline_of_an_element_set_is_its_perimeter(foil_mesh):
     """element_boundary of the solid: the edges no other solid element shares. Truth: the foil is
     the rectangle [0.75, 1.25] x [0.475, 0.525], perimeter 2 (0.5 + 0.05) = 1.1 m."""
-    from tofsi.mesh import SOLID
+    from tofsi.mesh.structured import SOLID
     m = foil_mesh
     edges = plotting.element_boundary(m.quads, m.region == SOLID)
     length = np.linalg.norm(m.points[edges[:, 0]] - m.points[edges[:, 1]], axis=1).sum()
@@ -179,7 +179,7 @@ def test_the_outline_of_an_element_set_is_its_perimeter(foil_mesh):
 def test_field_pictures_name_every_outline_and_patch_in_a_legend(figures, foil_mesh):
     """The velocity picture did not outline the design region or the solid; nothing said what
     the grey, the red or a dashed line is."""
-    from tofsi.mesh import DESIGN
+    from tofsi.mesh.structured import DESIGN
     m = foil_mesh
     region = m.region.copy()
     region[(m.centroids[:, 0] > 0.3) & (m.centroids[:, 0] < 0.6)] = DESIGN

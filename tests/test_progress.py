@@ -15,8 +15,8 @@ import time
 import pytest
 
 import tofsi
-from tofsi.optimize import Optimizer
-from tofsi.output import read_csv
+from tofsi.optimization.optimize import Optimizer
+from tofsi.runs.output import read_csv
 
 from conftest import scene_path
 
@@ -137,7 +137,7 @@ def test_failed_points_are_marked_in_the_csv_and_the_plot_and_counted(tmp_path, 
     assert [r["status"] for r in rows] == ["failed", "ok", "ok"]
     assert rows[0]["converged"] == "False" and float(rows[0]["n_inverted"]) > 0
 
-    import tofsi.plotting as plotting
+    import tofsi.runs.plotting as plotting
     figures = []
     monkeypatch.setattr(plotting, "save", lambda fig, path: figures.append(fig))
     plotting.plot_sweep(tmp_path / "s.png", read_csv(tmp_path / "o" / "study.csv"),

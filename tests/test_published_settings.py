@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 import tofsi
-from tofsi.coupled import CoupledModel
-from tofsi.design import DesignMap
-from tofsi.errors import InputError
-from tofsi.mesh import DESIGN, SOLID, StructuredQuadMesh
+from tofsi.coupling.coupled import CoupledModel
+from tofsi.optimization.design import DesignMap
+from tofsi.core.errors import InputError
+from tofsi.mesh.structured import DESIGN, SOLID, StructuredQuadMesh
 from tofsi.physics.flow import Flow
-from tofsi.settings import FluidSettings, SideFlow
+from tofsi.fields.flow import FluidSettings, SideFlow
 
 from conftest import load
 from no_slip import NoSlipReference

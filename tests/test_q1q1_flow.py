@@ -13,9 +13,9 @@ from flow_cases import Manufactured, rates, unit_square
 from tofsi.fem.geometry import map_points, physical_gradients
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.physics.flow import Flow
-from tofsi.settings import FluidSettings
+from tofsi.fields.flow import FluidSettings
 
 PI = np.pi
 
@@ -103,7 +103,7 @@ def test_poiseuille_flow_converges_at_second_order(density):
 def test_the_distributed_flow_refuses_the_equal_order_element_before_needing_petsc():
     """The PETSc slab assembly runs the Taylor-Hood kernel: a Q1/Q1 flow is refused by name (with or
     without petsc4py installed), not assembled with the wrong element."""
-    from tofsi.errors import InputError
+    from tofsi.core.errors import InputError
     from tofsi.parallel.flow_system import DistributedFlow
     mesh = StructuredQuadMesh(np.linspace(0, 2, 9), np.linspace(0, 1, 5))
     flow = Flow(mesh, FluidSettings(element="q1q1", outlet="zero-pressure"))

@@ -11,8 +11,8 @@ import pytest
 
 import tofsi
 from adjoint.checks import check_blocks
-from tofsi.coupled import CoupledModel
-from tofsi.mesh import SOLID
+from tofsi.coupling.coupled import CoupledModel
+from tofsi.mesh.structured import SOLID
 
 from conftest import load
 from gradient_checks import check_total_derivative

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tofsi import quality
+from tofsi.mesh import quality
 
 ONE = np.array([[0, 1, 2, 3]])
 

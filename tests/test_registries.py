@@ -19,16 +19,16 @@ import pytest
 import scipy.sparse as sp
 
 import tofsi
-from tofsi import memory
-from tofsi.blocks import FieldBlock, Linearization
-from tofsi.config import option
-from tofsi.fields import Field, Memory, Picture, on_q2_nodes
+from tofsi.runs import memory
+from tofsi.core.blocks import FieldBlock, Linearization
+from tofsi.core.config import option
+from tofsi.fields.base import Field, Memory, Picture, on_q2_nodes
 from tofsi.linalg import DirectSolver
 from tofsi.objectives import Objective
-from tofsi.provenance import flatten, scene_tables
-from tofsi.registry import FIELDS, OBJECTIVES, SCENE_TABLES
-from tofsi.scene import scene_from_dict
-from tofsi.scene_tables import SceneTable
+from tofsi.runs.provenance import flatten, scene_tables
+from tofsi.core.registry import FIELDS, OBJECTIVES
+from tofsi.scene.scene import scene_from_dict, table_entries
+from tofsi.scene.tables import SceneTable
 
 from conftest import scene_path
 
@@ -90,17 +90,17 @@ def test_an_objective_defined_in_a_test_file_optimizes_through_the_command_line(
     p = state.w[problem.model.flow.n_velocity:]
     assert history[0]["objective"] == pytest.approx(0.5 * p @ p, rel=1e-9)
     assert history[-1]["objective"] < history[0]["objective"]       # the optimizer lowered it
-    assert "pressure-energy" in tofsi.scene.reference_table()
+    assert "pressure-energy" in tofsi.scene.scene.reference_table()
 
 
 # ---- scene tables ----------------------------------------------------------------------------
-@pytest.mark.parametrize("table", SCENE_TABLES.names())
+@pytest.mark.parametrize("table", [t.name for t in table_entries()])
 def test_every_scene_table_is_written_whole_into_provenance(table):
     """The keys the scene reference documents for a table are exactly the keys provenance writes
     for it (a table missing from provenance, or a key, fails here)."""
     scene = tofsi.load_scene(scene_path("beam_in_channel_optimization_fsi"))
     written = set(flatten({table: scene_tables(scene)[table]}))
-    documented = {row[0] for row in SCENE_TABLES.get(table).rows()}
+    documented = {row[0] for row in next(t for t in table_entries() if t.name == table).rows()}
     assert written == documented
 
 
@@ -136,7 +136,7 @@ def test_every_field_writes_its_figures_arrays_and_pictures(cli, tmp_path):
         assert set(field.point_data(model, state)) <= set(vtu.point_data), field.name
         for picture in field.pictures(model, state):
             assert (tmp_path / "s" / f"solution_{picture.name}.png").stat().st_size > 1000
-        assert set(field.tables) <= set(settings), field.name
+        assert {table.name for table in field.tables} <= set(settings), field.name
 
 
 @dataclass(frozen=True)
@@ -193,7 +193,7 @@ class TracerLinearization(Linearization):
 
 
 class TracerField(Field):
-    name, title, tables, summary = "c", "tracer", ("tracer",), ("tracer_mean",)
+    name, title, tables, summary = "c", "tracer", (SceneTable("tracer", TracerSettings),), ("tracer_mean",)
 
     def active(self, scene, command="solve"):
         return scene.tracer.enabled and scene.effects.fluid != "none" and command not in ("move", "tune")
@@ -219,12 +219,11 @@ class TracerField(Field):
 
 @pytest.fixture
 def tracer():
-    table, field = SceneTable("tracer", TracerSettings), TracerField()
-    SCENE_TABLES.register(table)
+    """The field and its own table, registered as a plugin module would: the field alone."""
+    field = TracerField()
     FIELDS.register(field)
     yield field
     FIELDS.unregister(field.name)
-    SCENE_TABLES.unregister(table.name)
 
 
 def test_a_field_defined_in_a_test_file_reaches_provenance_solve_json_the_vtu_and_the_memory_guard(
@@ -254,4 +253,4 @@ def test_a_field_defined_in_a_test_file_reaches_provenance_solve_json_the_vtu_an
     assert estimate.unknowns["tracer"] == model.mesh.n_nodes
     assert "tracer" not in memory.estimate(tofsi.load_scene(scene_path("beam_in_channel_optimization")),
                                            "solve").unknowns
-    assert "tracer.gain" in tofsi.scene.reference_table()
+    assert "tracer.gain" in tofsi.scene.scene.reference_table()

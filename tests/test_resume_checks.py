@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import tofsi
-from tofsi.errors import InputError
-from tofsi.optimize import Optimizer
-from tofsi.resume import check_checkpoint, read_checkpoint
+from tofsi.core.errors import InputError
+from tofsi.optimization.optimize import Optimizer
+from tofsi.optimization.resume import check_checkpoint, read_checkpoint
 
 from conftest import scene_path
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import tofsi
-from tofsi.errors import InputError
-from tofsi.provenance import scene_tables
-from tofsi.run_folder import RunFolder, check_writable
-from tofsi.scene import scene_from_dict
+from tofsi.core.errors import InputError
+from tofsi.runs.provenance import scene_tables
+from tofsi.runs.run_folder import RunFolder, check_writable
+from tofsi.scene.scene import scene_from_dict
 
 from conftest import scene_path
 
@@ -166,7 +166,7 @@ def test_move_and_solve_json_carry_the_settings_that_define_the_result(cli, tmp_
 
 
 def test_the_effective_scene_round_trips_through_toml_for_every_shipped_scene(shipped_scene):
-    from tofsi.provenance import scene_toml
+    from tofsi.runs.provenance import scene_toml
     again = scene_from_dict(tomllib.loads(scene_toml(shipped_scene)), source=shipped_scene.source)
     assert again == shipped_scene and scene_tables(again) == scene_tables(shipped_scene)
 

@@ -5,8 +5,8 @@ import math
 import pytest
 
 import tofsi
-from tofsi.errors import InputError
-from tofsi.scene import parse_override
+from tofsi.core.errors import InputError
+from tofsi.scene.scene import parse_override
 
 from conftest import ALL_SCENES, load, scene_path
 
@@ -125,6 +125,22 @@ def test_override_without_equals_sign_is_rejected():
 
 def test_the_scene_reference_in_the_docs_is_current():
     from pathlib import Path
-    from tofsi.scene import reference_table
+    from tofsi.scene.scene import reference_table
     docs = (Path(__file__).resolve().parents[1] / "docs" / "scenes.md").read_text()
-    assert reference_table() in docs, "regenerate docs/scenes.md from tofsi.scene.reference_table()"
+    assert reference_table() in docs, "regenerate docs/scenes.md from tofsi.scene.scene.reference_table()"
+
+
+def test_loading_a_scene_reads_the_fields_tables_without_importing_physics():
+    """The fields' tables ([fluid], [structure], [mover]) come from their field modules; loading
+    a scene imports those modules but no physics (a field imports its physics when built)."""
+    import subprocess
+    import sys
+    code = ("import sys, tofsi; s = tofsi.load_scene(sys.argv[1]); "
+            "print(s.fluid.viscosity, s.structure.youngs_modulus, s.mover.name, "
+            "[m for m in sys.modules if m.startswith('tofsi.physics')])")
+    run = subprocess.run([sys.executable, "-c", code, str(scene_path("beam_in_channel_optimization_fsi"))],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    scene = load("beam_in_channel_optimization_fsi")
+    assert run.stdout.split() == [str(scene.fluid.viscosity), str(scene.structure.youngs_modulus),
+                                  scene.mover.name, "[]"]

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from tofsi.blocks import Continuation
+from tofsi.core.blocks import Continuation
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.complex_step import COMPLEX_STEP, corner_derivatives
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.objectives.compliance import Compliance
 from tofsi.objectives.dissipation import Dissipation
 from tofsi.physics.fluid_kernel import brinkman_partial, fluid_element
@@ -29,7 +29,8 @@ from tofsi.physics.fluid_load import load_operator
 from tofsi.physics.fluid_shape import dissipation_shape, fluid_shape, mass_shape, stress_load_shape
 from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
-from tofsi.settings import FluidSettings, StructureSettings
+from tofsi.fields.flow import FluidSettings
+from tofsi.fields.structure import StructureSettings
 
 TOL = 1e-10
 PARAMS = Continuation(brinkman_q=0.3, load_exponent=3.0)

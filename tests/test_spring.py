@@ -9,8 +9,8 @@ from movers.base import MotionProblem
 from movers.spring import SpringMover, SpringParams
 from movers.spring_kernel import quad_stiffness, triangle_stiffness
 from reference_kernels import spring_quad
-from tofsi import quality
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.mesh import quality
+from tofsi.mesh.structured import StructuredQuadMesh
 
 
 def test_right_triangle_matrices_by_hand():

@@ -6,11 +6,12 @@ import pytest
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.linalg import DirectSolver
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.mesh.structured import StructuredQuadMesh
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
-from tofsi.settings import FluidSettings, StructureSettings
+from tofsi.fields.flow import FluidSettings
+from tofsi.fields.structure import StructureSettings
 
 
 def distorted(n=5, amp=0.12, seed=0):
@@ -62,7 +63,7 @@ def test_stress_divergence_load_resultant_and_moment_are_exact_on_a_distorted_bl
     block = (np.abs(mesh.centroids - 0.5) < 0.25).all(axis=1)     # 3x3 elements, moved
     rho[block] = 1.0
     f = structure.load(w, x, rho).reshape(-1, 2)
-    from tofsi.quality import signed_area
+    from tofsi.mesh.quality import signed_area
     area = signed_area(mesh.points + x, mesh.quads[block]).sum()
     div = np.array([-c + 2 * a * mu, 2 * b * mu - d])               # div sigma, constant here
     np.testing.assert_allclose(f.sum(axis=0), area * div, rtol=1e-12, atol=1e-13)

@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from tofsi.errors import InputError
-from tofsi.output import read_csv, write_csv
-from tofsi.study import Sweep, best, overrides_for, parse_sweep, points
+from tofsi.core.errors import InputError
+from tofsi.runs.output import read_csv, write_csv
+from tofsi.optimization.study import Sweep, best, overrides_for, parse_sweep, points
 
 from conftest import scene_path
 

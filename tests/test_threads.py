@@ -6,8 +6,8 @@ import pytest
 from threadpoolctl import threadpool_info
 
 from tofsi.linalg import backends
-from tofsi.settings import SolverSettings
-from tofsi.threads import configure, set_blas_threads, solver_threads
+from tofsi.scene.settings import SolverSettings
+from tofsi.linalg.threads import configure, set_blas_threads, solver_threads
 
 
 def openblas_threads() -> set[int]:
@@ -54,7 +54,7 @@ def test_two_models_with_different_solver_tables_do_not_interfere(monkeypatch):
     """Building a model changes nothing process-wide: each solves with its own BLAS threads and
     backend, whichever was built last."""
     import tofsi
-    from tofsi.coupled import CoupledModel
+    from tofsi.coupling.coupled import CoupledModel
     monkeypatch.delenv("TOFSI_BLAS_THREADS", raising=False)
     monkeypatch.delenv("TOFSI_LINEAR_SOLVER", raising=False)
     base = ["mesh.h_min=0.1", "mesh.h_max=0.1"]

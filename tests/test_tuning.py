@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from adjoint.checks import central_difference, relative_error, taylor_test
-from tofsi.errors import InputError, NumericalError
-from tofsi.mesh import StructuredQuadMesh
-from tofsi.motion import motion_setup, move_figures
-from tofsi.quality import area_change, skewness
-from tofsi.soft_quality import (area_change_vjp, corner_skewness, corner_skewness_vjp, soft_max,
+from tofsi.core.errors import InputError, NumericalError
+from tofsi.mesh.structured import StructuredQuadMesh
+from tofsi.coupling.motion import motion_setup, move_figures
+from tofsi.mesh.quality import area_change, skewness
+from tofsi.mesh.soft_quality import (area_change_vjp, corner_skewness, corner_skewness_vjp, soft_max,
                                 soft_min)
-from tofsi.tuning import TuningProblem, parametrization, tune
+from tofsi.optimization.tuning import TuningProblem, parametrization, tune
 
 from conftest import load, scene_path
 

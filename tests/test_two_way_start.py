@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 import tofsi
-from tofsi.coupled import continuation
-from tofsi.errors import NumericalError
-from tofsi.optimize import Optimizer
+from tofsi.coupling.coupled import continuation
+from tofsi.core.errors import NumericalError
+from tofsi.optimization.optimize import Optimizer
 
 from conftest import load
 

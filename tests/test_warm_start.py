@@ -12,8 +12,8 @@ import pytest
 import movers
 from test_coupled import soft_model
 from test_mover_derivatives import setup_problem
-from tofsi import quality
-from tofsi.motion import motion_setup
+from tofsi.mesh import quality
+from tofsi.coupling.motion import motion_setup
 
 from conftest import load
 

@@ -8,8 +8,8 @@ from movers.yeoh import YeohKernel, YeohMover, YeohParams
 from movers import yeoh_kernel
 from movers.yeoh_material import BLOCKS, energy, piola_and_elasticity, stress_and_tangent
 from reference_kernels import yeoh_quad
-from tofsi.errors import NumericalError
-from tofsi.mesh import StructuredQuadMesh
+from tofsi.core.errors import NumericalError
+from tofsi.mesh.structured import StructuredQuadMesh
 
 PARAMS = dict(A10=1.3, A20=7.0, A30=2.5, kappa=3.0)
 

@@ -141,7 +141,7 @@ def optimize(nx, ny, problem, length=1.0, mu=1.0, density=1e-3, alpha_max=2.5e4,
         ocfac = xa * np.maximum(1e-10, -sa / dV) ** (1 / 3)
         # topFlow's bracket; with passive elements its listing divides by neltot, which can make
         # it too short (the design then breaks the bound): here by nactive, and widened (as in
-        # tofsi.oc) while the design at its end breaks the bound beyond round-off
+        # tofsi.optimization.oc) while the design at its end breaks the bound beyond round-off
         l1, l2 = 0.0, (ocfac.sum() / (xa.size * volfrac)) ** 3
         while np.maximum(0, np.maximum(xlow, np.minimum(1, np.minimum(xupp, ocfac / l2 ** (1 / 3))))).mean() > volfrac * (1 + 1e-9):
             l1, l2 = l2, 2 * l2

@@ -11,11 +11,11 @@ naming the file, the reason and the complete files kept; ``run.json`` says
 handled like Ctrl-C).
 
 Before any computation the output folder is checked: it must be writable,
-with room for the run's files (:mod:`tofsi.output_size`), not in use by
-another run (a lock, :mod:`tofsi.folder_lock`), and a fresh run refuses a
+with room for the run's files (:mod:`tofsi.runs.output_size`), not in use by
+another run (a lock, :mod:`tofsi.runs.folder_lock`), and a fresh run refuses a
 folder holding another run's files unless ``--overwrite`` (``--resume``
 continues the run in it). Every folder a run writes gets a ``run.json``
-with the run's provenance (:mod:`tofsi.provenance`).
+with the run's provenance (:mod:`tofsi.runs.provenance`).
 """
 
 from __future__ import annotations
@@ -36,14 +36,14 @@ from pathlib import Path
 import tofsi
 from tofsi.commands.context import RunContext
 from tofsi.commands.hints import hint
-from tofsi.errors import InputError, NumericalError, WriteError
-from tofsi.memory import check as check_memory
-from tofsi.output import default_output, to_json, write_json
-from tofsi.output_size import check_room
-from tofsi.provenance import run_record
-from tofsi.run_folder import RunFolder
-from tofsi.scene import load_scene
-from tofsi.threads import configure as configure_linear_algebra, mpi_rank
+from tofsi.core.errors import InputError, NumericalError, WriteError
+from tofsi.runs.memory import check as check_memory
+from tofsi.runs.output import default_output, to_json, write_json
+from tofsi.runs.output_size import check_room
+from tofsi.runs.provenance import run_record
+from tofsi.runs.run_folder import RunFolder
+from tofsi.scene.scene import load_scene
+from tofsi.linalg.threads import configure as configure_linear_algebra, mpi_rank
 
 COMMANDS = {
     "mesh": "build the scene's mesh; print sizes; write the mesh and a picture",

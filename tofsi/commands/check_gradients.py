@@ -24,10 +24,10 @@ import numpy as np
 
 from adjoint.checks import check_blocks, check_totals
 from tofsi.commands.context import stage_index
-from tofsi.coupled import continuation, two_way_stages
-from tofsi.optimize import Optimizer
-from tofsi.output import write_json
-from tofsi.problem import Problem
+from tofsi.coupling.coupled import continuation, two_way_stages
+from tofsi.optimization.optimize import Optimizer
+from tofsi.runs.output import write_json
+from tofsi.optimization.problem import Problem
 
 PERTURBATION = 0.02      # of a reached design: a generic point, still one the mesh can follow
 

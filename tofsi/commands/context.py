@@ -11,7 +11,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from tofsi.errors import InputError
+from tofsi.core.errors import InputError
 
 
 def stage_index(scene, text) -> int:
@@ -26,7 +26,7 @@ def stage_index(scene, text) -> int:
 
 @dataclass
 class RunContext:
-    """output : the output folder; folder : its :class:`~tofsi.run_folder.RunFolder` (None:
+    """output : the output folder; folder : its :class:`~tofsi.runs.run_folder.RunFolder` (None:
     no checks, no run.json -- library use); record : the provenance run.json starts with."""
 
     output: Path

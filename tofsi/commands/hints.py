@@ -6,7 +6,7 @@ import movers
 
 
 def hint(err, scene, command: str = "") -> str:
-    """A hint for the :class:`~tofsi.errors.NumericalError` ``err`` of a ``tofsi command``
+    """A hint for the :class:`~tofsi.core.errors.NumericalError` ``err`` of a ``tofsi command``
     run of ``scene`` (empty when there is nothing specific to say)."""
     message, diagnostic = str(err), err.diagnostic
     if scene is None:

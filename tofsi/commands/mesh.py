@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofsi import quality
-from tofsi.channel import build_mesh
-from tofsi.layers import element_layers
-from tofsi.mesh import REGION_NAMES, SOLID
-from tofsi.output import write_vtu
-from tofsi.plotting import plot_mesh, region_outlines
+from tofsi.mesh import quality
+from tofsi.mesh.channel import build_mesh
+from tofsi.mesh.layers import element_layers
+from tofsi.mesh.structured import REGION_NAMES, SOLID
+from tofsi.runs.output import write_vtu
+from tofsi.runs.plotting import plot_mesh, region_outlines
 
 
 def mesh_figures(mesh) -> dict:

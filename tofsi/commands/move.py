@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofsi import quality
-from tofsi.errors import InputError, NumericalError
-from tofsi.mesh import SOLID
-from tofsi.motion import motion_setup, moved_quality, run_move
-from tofsi.output import write_json, write_vtu
-from tofsi.plotting import Outline, element_boundary, plot_mesh
-from tofsi.provenance import mover_settings
+from tofsi.mesh import quality
+from tofsi.core.errors import InputError, NumericalError
+from tofsi.mesh.structured import SOLID
+from tofsi.coupling.motion import motion_setup, moved_quality, run_move
+from tofsi.runs.output import write_json, write_vtu
+from tofsi.runs.plotting import Outline, element_boundary, plot_mesh
+from tofsi.runs.provenance import mover_settings
 
 MOTION_KEYS = {"translation": "deformation.translation", "rotation": "deformation.rotation_deg",
                "bending": "deformation.bending_tip", "pressure": "deformation.tip_displacement",

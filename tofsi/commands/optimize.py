@@ -6,12 +6,12 @@ import sys
 
 import numpy as np
 
-from tofsi import quality
-from tofsi.optimize import Optimizer
-from tofsi.output import atomic_write, write_vtu
-from tofsi.plotting import plot_convergence, plot_design, region_outlines
-from tofsi.problem import Problem
-from tofsi.resume import check_checkpoint
+from tofsi.mesh import quality
+from tofsi.optimization.optimize import Optimizer
+from tofsi.runs.output import atomic_write, write_vtu
+from tofsi.runs.plotting import plot_convergence, plot_design, region_outlines
+from tofsi.optimization.problem import Problem
+from tofsi.optimization.resume import check_checkpoint
 
 
 class Pictures:

@@ -19,15 +19,15 @@ them (exit 0, the warning kept). Where the mesh moves with the structure
 from __future__ import annotations
 
 
-from tofsi import quality
+from tofsi.mesh import quality
 from tofsi.commands.context import stage_index
-from tofsi.coupled import CoupledModel, continuation
-from tofsi.errors import InputError
-from tofsi.fields import Picture, state_points
-from tofsi.output import write_json, write_vtu
-from tofsi.plotting import plot_mesh, plot_nodal, region_outlines
-from tofsi.problem import Problem
-from tofsi.provenance import solve_settings
+from tofsi.coupling.coupled import CoupledModel, continuation
+from tofsi.core.errors import InputError
+from tofsi.fields.base import Picture, state_points
+from tofsi.runs.output import write_json, write_vtu
+from tofsi.runs.plotting import plot_mesh, plot_nodal, region_outlines
+from tofsi.optimization.problem import Problem
+from tofsi.runs.provenance import solve_settings
 
 
 UNPHYSICAL = 5      # exit status: the figures are written, but they are no physical state
@@ -35,7 +35,7 @@ UNPHYSICAL = 5      # exit status: the figures are written, but they are no phys
 
 def write_state(ctx, model: CoupledModel, state, name: str = "solution") -> None:
     """VTU (biquadratic cells: the Q2 velocity exactly) with every active field's arrays, and
-    the pictures each field asks for (:meth:`tofsi.fields.Field.pictures`)."""
+    the pictures each field asks for (:meth:`tofsi.fields.base.Field.pictures`)."""
     mesh = model.mesh
     X = state_points(model, state)
     point_data = {}
@@ -96,19 +96,11 @@ def run(scene, args, ctx) -> dict:
                 f"and the projection of stage {about['stage']} (beta {about['beta']:g})")
     with ctx.step(f"solving {fields} on {model.mesh.n_elements} quads"):
         state = model.solve(rho, params=None if problem is None else problem.params)
-    warnings, physical = [], True
-    if model.structure is not None and state.x is not None:      # the mesh moved with it
-        model.structure.check_displacement(state.u)
-    elif model.structure is not None:                # one-way: the answer, flagged
-        beyond = model.structure.displacement_beyond_channel(state.u)
-        if beyond:
-            physical = False
-            strain = "finite-strain" if model.structure.nonlinear(state.params) else "small-strain"
-            warnings.append(beyond + f": the {strain} answer for a design far too soft for the "
-                            "flow, not a physical state (optimize starts from it); for a designed "
-                            "structure: --design FILE (the design.npy of tofsi optimize) with --stage last"
-                            + ("" if args.allow_unphysical else
-                               f"; exit status {UNPHYSICAL} (--allow-unphysical accepts these figures)"))
+    hint = ("; for a designed structure: --design FILE (the design.npy of tofsi optimize) with --stage last"
+            + ("" if args.allow_unphysical else f"; exit status {UNPHYSICAL} (--allow-unphysical accepts "
+                                                 "these figures)"))
+    warnings = [text + hint for field in model.fields for text in field.check(model, state)]
+    physical = not warnings
     for text in warnings:
         ctx.warn(text)
     if not physical and not args.allow_unphysical:

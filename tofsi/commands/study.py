@@ -7,11 +7,11 @@ writes the points it finished to ``study.csv`` before it stops.
 
 from __future__ import annotations
 
-from tofsi.errors import InputError
-from tofsi.motion import move_figures
-from tofsi.output import write_csv, write_json
-from tofsi.plotting import failed, plot_sweep
-from tofsi.study import best, parse_sweep, plan, run_tasks
+from tofsi.core.errors import InputError
+from tofsi.coupling.motion import move_figures
+from tofsi.runs.output import write_csv, write_json
+from tofsi.runs.plotting import failed, plot_sweep
+from tofsi.optimization.study import best, parse_sweep, plan, run_tasks
 
 
 def runner_for(scene):

@@ -1,7 +1,7 @@
 """``tofsi tune SCENE``: stiffening factors tuned by gradients for the scene's motion and mover.
 
 Settings come from the scene's ``[tune]`` table (``--set tune.layers=4``,
-``--set tune.parametrization=profile``, ...; see :mod:`tofsi.tuning`).
+``--set tune.parametrization=profile``, ...; see :mod:`tofsi.optimization.tuning`).
 Writes ``tune.json`` (figures, the tuned design and every evaluation),
 ``tune_history.csv``, and the mesh moved with the tuned factors
 (``tuned_mesh.vtu`` / ``.png``).
@@ -10,10 +10,10 @@ Writes ``tune.json`` (figures, the tuned design and every evaluation),
 from __future__ import annotations
 
 from tofsi.commands.move import check_motion_inside, write_moved_mesh
-from tofsi.motion import motion_setup
-from tofsi.output import write_csv, write_json
-from tofsi.provenance import mover_settings, scene_tables
-from tofsi.tuning import tune
+from tofsi.coupling.motion import motion_setup
+from tofsi.runs.output import write_csv, write_json
+from tofsi.runs.provenance import mover_settings, scene_tables
+from tofsi.optimization.tuning import tune
 
 
 def run(scene, args, ctx) -> dict:

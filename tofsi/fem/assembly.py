@@ -99,13 +99,3 @@ class SparsePattern:
 def assemble_vector(dofs: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
     """Global vector from element vectors ``values`` ``(E, a)`` on ``dofs`` ``(E, a)``."""
     return np.bincount(dofs.ravel(), weights=values.ravel(), minlength=size)
-
-
-def weighted_gram(A: np.ndarray, B: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``sum_g w[e, g] A[e, g]^T B[e, g]`` ``(E, a, b)`` for ``A`` ``(E, G, m, a)``, ``B`` ``(E, G, m, b)``.
-
-    One batched matrix product over the stacked quadrature points.
-    """
-    E, G, m, a = A.shape
-    Aw = (A * w[:, :, None, None]).reshape(E, G * m, a)
-    return np.matmul(Aw.transpose(0, 2, 1), B.reshape(E, G * m, B.shape[-1]))

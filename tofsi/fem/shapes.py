@@ -2,7 +2,7 @@
 
 Q1 (4 nodes): corners (-1,-1), (1,-1), (1,1), (-1,1).
 Q2 (9 nodes): the 4 corners, then the mid-sides bottom, right, top, left,
-then the centre -- the ordering of :attr:`tofsi.mesh.StructuredQuadMesh.quads9`.
+then the centre -- the ordering of :attr:`tofsi.mesh.structured.StructuredQuadMesh.quads9`.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ import numpy as np
 import pyamg
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 
 log = logging.getLogger(__name__)
 

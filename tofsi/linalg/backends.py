@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import InputError
+from tofsi.core.errors import InputError
 
 log = logging.getLogger(__name__)
 

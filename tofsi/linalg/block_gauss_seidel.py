@@ -30,10 +30,11 @@ Jacobians (Newton iterates) until it goes stale.
 from __future__ import annotations
 
 import logging
+from itertools import pairwise
 
 import numpy as np
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.linalg.backends import canonical_csr
 from tofsi.linalg.block_matrix import BlockMatrix
 from tofsi.linalg.direct import DirectSolver
@@ -81,7 +82,7 @@ class BlockGaussSeidel:
     def _sweep(self, r: np.ndarray) -> np.ndarray:
         """``M^{-1} r``: forward block substitution."""
         z = np.empty_like(r)
-        for i, (a, b) in enumerate(zip(self.starts[:-1], self.starts[1:])):
+        for i, (a, b) in enumerate(pairwise(self.starts)):
             rhs = r[a:b] - self.lower[i] @ z[:a] if self.lower[i] else r[a:b]
             z[a:b] = self._solve[i](rhs)
         return z

@@ -1,6 +1,6 @@
 """The linear algebra a model uses: its sparse direct backend and threads, as one record.
 
-Every model (:class:`tofsi.coupled.CoupledModel`, a mesh-motion study) owns a
+Every model (:class:`tofsi.coupling.coupled.CoupledModel`, a mesh-motion study) owns a
 :class:`LinearAlgebra` built from its scene's ``[solver]`` table and hands it
 to the physics it builds; each factorization is made on that backend with
 those threads. Nothing process-wide changes when a model is built, so two
@@ -55,7 +55,7 @@ class LinearAlgebra:
 
     @classmethod
     def from_settings(cls, settings) -> "LinearAlgebra":
-        """From a ``[solver]`` table (:class:`tofsi.settings.SolverSettings`): ``auto`` resolved
+        """From a ``[solver]`` table (:class:`tofsi.scene.settings.SolverSettings`): ``auto`` resolved
         to the fastest installed backend, an unavailable one refused (InputError naming why),
         ``threads = 0`` one per core; the environment's overrides applied."""
         from tofsi.linalg.backends import resolve

@@ -17,7 +17,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.linalg.backends import analysis_for, canonical_csr, get_backend
 from tofsi.linalg.ordering import nested_dissection
 

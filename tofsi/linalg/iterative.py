@@ -65,7 +65,7 @@ import pyamg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.linalg.recycling import GMRES_RESTART, flexible_gmres
 
 log = logging.getLogger(__name__)

@@ -40,7 +40,7 @@ import weakref
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +88,6 @@ def set_threads(n: int) -> None:
 
 class Backend:
     name = "pardiso"
-    reproducible = True               # with MKL_CBWR=AUTO,STRICT (set on load)
 
     def __init__(self):
         self.analyses = 0
@@ -132,7 +131,6 @@ class Analysis:
         self.slots: list = [None] * SLOTS
         dummy = np.zeros(pattern.nnz)
         self.call(11, 1, dummy, np.zeros(0), np.zeros(0), nrhs=0)
-        self.analysis_kb = int(p[14])
         weakref.finalize(self, _release, self.lib, self.pt, self.ia, self.ja)
 
     def call(self, phase: int, mnum: int, a, b, x, nrhs: int = 1, iparm=None):
@@ -189,7 +187,6 @@ class Factorization:
         self.analysis, self.mnum = analysis, mnum
         self.iparm = iparm
         self.factor_nnz = int(iparm[17])
-        self.perturbed_pivots = int(iparm[13])
         self.memory_bytes = 1024 * (int(iparm[15]) + int(iparm[16]))
 
     def solve(self, b: np.ndarray, trans: str = "N") -> np.ndarray:

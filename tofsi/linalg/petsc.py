@@ -26,7 +26,7 @@ import weakref
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,6 @@ def unavailable() -> str | None:
 
 class Backend:
     name = "petsc"
-    reproducible = True
 
     def __init__(self):
         self.analyses = 0
@@ -89,7 +88,6 @@ class Slot:
         pc.setType("lu")
         pc.setFactorSolverType("mumps")
         self.owner = None
-        self.analysed = False
 
     def free(self) -> bool:
         return self.owner is None or self.owner() is None

@@ -9,7 +9,7 @@ import numpy as np
 import pyamg.krylov
 import scipy.sparse.linalg as spla
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 
 log = logging.getLogger(__name__)
 GMRES_RESTART = 50          # restart length of GMRES preconditioned by an AMG cycle

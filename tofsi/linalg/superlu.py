@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 
 INDEX_BYTES = 4
 
@@ -28,7 +28,6 @@ def unavailable() -> str | None:
 
 class Backend:
     name = "superlu"
-    reproducible = True
 
     def __init__(self):
         self.analyses = 0

@@ -1,4 +1,4 @@
-"""Objectives of a coupled state: one module each, registered in :data:`tofsi.registry.OBJECTIVES`.
+"""Objectives of a coupled state: one module each, registered in :data:`tofsi.core.registry.OBJECTIVES`.
 
 An objective is one class, in one module of this package, that carries its
 whole story -- the scene key ``design.objective`` reads its ``name``, the
@@ -22,7 +22,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from tofsi.registry import OBJECTIVES
+from tofsi.core.registry import OBJECTIVES
 
 
 class Objective:

@@ -14,7 +14,7 @@ import numpy as np
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.complex_step import corner_derivatives
 from tofsi.objectives import Objective
-from tofsi.registry import OBJECTIVES
+from tofsi.core.registry import OBJECTIVES
 
 
 @OBJECTIVES.register

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofsi.objectives import Objective
-from tofsi.registry import OBJECTIVES
+from tofsi.core.registry import OBJECTIVES
 
 
 @OBJECTIVES.register

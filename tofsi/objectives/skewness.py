@@ -1,12 +1,12 @@
 """The mesh-quality constraint's quantity: a soft minimum of the moved fluid mesh's corner skewness.
 
 ``q = KS_p(s_c(X + x))`` over the four corners of every quad of the mesh the
-flow is solved on (:func:`tofsi.soft_quality.soft_min`: a smooth lower bound
+flow is solved on (:func:`tofsi.mesh.soft_quality.soft_min`: a smooth lower bound
 of the worst corner's skewness, within ``log(4E)/p`` of it, and close to it
 where few corners are near the worst), so the constraint ``q >= s`` keeps the
 moved mesh away from folding. Its only partial is the one in the mesh
 displacement ``x``, ``dq/dx = sum_c w_c ds_c/dX`` (analytic,
-:func:`tofsi.soft_quality.corner_skewness_vjp`); the coupled adjoint carries
+:func:`tofsi.mesh.soft_quality.corner_skewness_vjp`); the coupled adjoint carries
 it through the mover and the structure to the densities. Not an objective (it
 is not registered): a constraint of two-way stages (``design.min_skewness``).
 """
@@ -14,7 +14,7 @@ is not registered): a constraint of two-way stages (``design.min_skewness``).
 from __future__ import annotations
 
 
-from tofsi.soft_quality import corner_skewness, corner_skewness_vjp, soft_min
+from tofsi.mesh.soft_quality import corner_skewness, corner_skewness_vjp, soft_min
 
 
 class SoftMinSkewness:

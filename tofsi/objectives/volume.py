@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofsi.quality import signed_area
+from tofsi.mesh.quality import signed_area
 
 
 class VolumeFraction:

@@ -9,7 +9,7 @@ objective ``f(w, rho) = sum_e f_e(w_e, rho_e)`` each rank
   own kernels (read through :class:`SlabView`), and adds the element partials
   into a distributed vector ``g``;
 * solves ``J_c^T lam = -g`` (fixed rows of ``g`` zeroed: the serial adjoint's
-  homogenized multipliers, :class:`tofsi.physics.fields.FlowLinearization`)
+  homogenized multipliers, :class:`tofsi.fields.flow.FlowLinearization`)
   with the Newton's FGMRES and Schur fieldsplit, transposed
   (:meth:`~tofsi.parallel.flow_system.DistributedFlow.solve_transpose`);
 * forms ``df/drho_e = df_e/drho_e + (dR_e/drho_e)^T lam_e`` on its elements
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofsi.errors import InputError
+from tofsi.core.errors import InputError
 
 SLAB_OBJECTIVES = ("dissipation", "dissipation-strain")      # element sums of the velocity only
 

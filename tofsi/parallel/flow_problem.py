@@ -1,6 +1,6 @@
 """A flow-only design problem evaluated across MPI ranks: ``gamma -> rho -> w`` by slabs -> ``f, df/dgamma``.
 
-:class:`DistributedFlowProblem` answers what :class:`tofsi.problem.Problem`
+:class:`DistributedFlowProblem` answers what :class:`tofsi.optimization.problem.Problem`
 answers for a scene whose only physics is the flow (``effects.structure =
 "none"``, ``effects.mesh_motion = "none"``; a ``dissipation`` or
 ``dissipation-strain`` objective) -- :meth:`evaluate` and :meth:`constraints`
@@ -9,7 +9,7 @@ and differentiated by slabs (:class:`~tofsi.parallel.flow_system.DistributedFlow
 :class:`~tofsi.parallel.flow_adjoint.SlabObjective`).
 
 Replicated on every rank (cheap, and the same on each): the serial
-:class:`~tofsi.problem.Problem`'s mesh, design map (filter and projection)
+:class:`~tofsi.optimization.problem.Problem`'s mesh, design map (filter and projection)
 and volume weights -- it never solves here -- the design variables ``gamma``
 ``(n_design,)``, the densities ``rho`` ``(E,)`` and the gradients, which are
 E-vectors. Every rank must call :meth:`evaluate` and :meth:`constraints` with
@@ -17,7 +17,7 @@ the same ``gamma`` (collective calls); :mod:`tofsi.parallel.optimize_flow`
 broadcasts it from rank 0.
 
 The chain rule is the serial one: ``df/dgamma = (d rho/d gamma)^T df/drho``
-(:meth:`tofsi.design.DesignMap.transpose`: the projection's derivative, then
+(:meth:`tofsi.optimization.design.DesignMap.transpose`: the projection's derivative, then
 the filter's transpose), and the volume bound
 ``g = phase fraction / volume_fraction - 1`` with
 ``dg/dgamma = +-(d rho/d gamma)^T weights / volume_fraction`` (no solve).
@@ -30,11 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofsi.errors import InputError
-from tofsi.kept import Kept, input_key
+from tofsi.core.errors import InputError
+from tofsi.core.kept import Kept, input_key
 from tofsi.parallel.flow_adjoint import SLAB_OBJECTIVES, SlabObjective
 from tofsi.parallel.flow_system import DistributedFlow
-from tofsi.problem import Problem
+from tofsi.optimization.problem import Problem
 
 log = logging.getLogger(__name__)
 

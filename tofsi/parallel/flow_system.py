@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tofsi.errors import InputError, NumericalError
-from tofsi.iteration import backtracking, forcing_term
+from tofsi.core.errors import InputError, NumericalError
+from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.linalg.iterative import FLOOR
 from tofsi.parallel.partition import SlabPartition
 from tofsi.physics.flow_preconditioner import element_areas
@@ -116,7 +116,6 @@ class DistributedFlow:
         self.is_v = PETSc.IS().createGeneral(p.velocity.astype(PETSc.IntType), comm=self.comm)
         self.is_p = PETSc.IS().createGeneral(p.pressure.astype(PETSc.IntType), comm=self.comm)
         self.krylov_iterations = 0
-        self.assembled = False
         self.linearized_at = None         # (x, rho, params) of the converged self.mat
         self.transposed_iterations = 0
 
@@ -217,7 +216,6 @@ class DistributedFlow:
         if jacobian:
             self.mat.assemble()
             self.mat.zeroRowsColumns(self.fixed_owned, diag=1.0)
-            self.assembled = True
         return self.r.norm()
 
     def _schur_parts(self, x, rho, params):
@@ -358,7 +356,7 @@ class DistributedFlow:
                 dw.getArray()[self.fixed_owned - self.part.owned[0]] = 0.0     # the boundary values stay
                 base = self.w.copy()
 
-                def trial(alpha):
+                def trial(alpha, dw=dw, base=base):
                     self.w.waxpy(alpha, dw, base)
                     merit = self.assemble(self.w, x, rho, flow.density, jacobian=(alpha == 1.0), params=params)
                     return merit, merit

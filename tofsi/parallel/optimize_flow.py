@@ -5,9 +5,9 @@
 
 Every rank builds the :class:`~tofsi.parallel.flow_problem.DistributedFlowProblem`
 (the replicated mesh, design map and volume weights; its own slab of the flow).
-Rank 0 runs NLopt exactly as :class:`tofsi.optimize.Optimizer` does -- the
+Rank 0 runs NLopt exactly as :class:`tofsi.optimization.optimize.Optimizer` does -- the
 stages of the scene's continuation, each from the design shifted into the
-volume bound (:meth:`tofsi.problem.Problem.feasible`), ``f / f(stage start)``
+volume bound (:meth:`tofsi.optimization.problem.Problem.feasible`), ``f / f(stage start)``
 minimized with MMA or CCSAQ from the initial step ``INITIAL_STEP``, the
 budget ``optimizer.max_iter`` (``--iterations``) and ``design.stage_iterations``,
 and the same early stop on small changes -- and broadcasts each new design
@@ -18,7 +18,7 @@ rank 0 holds them as every rank does. Rank 0 alone writes ``history.json``
 and ``history.csv`` (the serial optimizer's rows), ``design.npy`` and
 ``result.json`` into ``--output``, and prints one line per evaluation.
 
-Not here (the serial :class:`~tofsi.optimize.Optimizer` has them): the
+Not here (the serial :class:`~tofsi.optimization.optimize.Optimizer` has them): the
 optimality-criteria algorithm, fallbacks and bridging stages after a failed
 solve (a failure stops the run on every rank), checkpoints and ``resume``,
 pictures and VTU output.
@@ -35,11 +35,11 @@ from pathlib import Path
 import nlopt
 import numpy as np
 
-from tofsi.coupled import continuation
-from tofsi.errors import InputError
-from tofsi.nlopt_stage import ALGORITHMS, INITIAL_STEP, run_stage, settled
-from tofsi.optimize import Iteration, non_discreteness
-from tofsi.output import atomic_write, write_csv, write_json
+from tofsi.coupling.coupled import continuation
+from tofsi.core.errors import InputError
+from tofsi.optimization.nlopt_stage import ALGORITHMS, INITIAL_STEP, run_stage, settled
+from tofsi.optimization.optimize import Iteration, non_discreteness
+from tofsi.runs.output import atomic_write, write_csv, write_json
 
 log = logging.getLogger(__name__)
 

@@ -1,1 +1,1 @@
-"""Physics kernels and residual blocks: elasticity, Taylor-Hood flow, fluid load."""
+"""Physics: elasticity, Taylor-Hood and equal-order flow, the fluid load, mesh motion, material interpolations."""

@@ -25,7 +25,7 @@ load; when that fails the load is stepped from the start's own load (zero,
 or ``R_int(guess)``) to ``f``, a failed step halved (cutback), an easy one
 followed by a longer one. The first Newton step from zero is the linear
 solution (the tangent at ``u = 0`` is the small-strain stiffness). Failure
-raises :class:`~tofsi.errors.NumericalError` with the worst element
+raises :class:`~tofsi.core.errors.NumericalError` with the worst element
 (smallest ``det F``, its centroid).
 """
 
@@ -38,12 +38,12 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.errors import NumericalError
+from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.neo_hookean import ElementValues, NeoHookeanKernel, NonlinearWeight
-from tofsi.interpolation import SIMP
-from tofsi.iteration import forcing_term
-from tofsi.kept import Kept, input_key
+from tofsi.physics.interpolation import SIMP
+from tofsi.core.iteration import forcing_term
+from tofsi.core.kept import Kept, input_key
 from tofsi.linalg import RecyclingSolver
 
 log = logging.getLogger(__name__)
@@ -96,7 +96,7 @@ class FiniteStrainElasticity:
     """The neo-Hookean structure's internal forces, tangent, density partials and Newton solve.
 
     mesh : the structured mesh (reference configuration); settings : the
-    :class:`~tofsi.settings.StructureSettings` (``poisson_ratio``,
+    :class:`~tofsi.scene.settings.StructureSettings` (``poisson_ratio``,
     ``interpolation``, ``energy_threshold``, ``energy_sharpness``,
     ``newton_tol``, ``max_newton``, ``max_cutbacks``); bc : the clamped dofs'
     :class:`~tofsi.fem.dirichlet.DirichletOperator`; dofs : element dofs
@@ -159,7 +159,7 @@ class FiniteStrainElasticity:
 
     def element_values(self, u, rho, simp: SIMP, tangent: bool = True):
         """Element internal forces ``(E, 8)``, tangents ``(E, 8, 8)`` (or None) and smallest
-        ``det F`` ``(E,)``; raises :class:`~tofsi.errors.NumericalError` if an element inverts."""
+        ``det F`` ``(E,)``; raises :class:`~tofsi.core.errors.NumericalError` if an element inverts."""
         Re, Ke, det_min, _ = self._values(u, rho, simp, tangent)
         if Re is None:
             raise NumericalError("structure: an element is inverted (det F <= 0 in the neo-Hookean part)",

@@ -17,9 +17,9 @@ pressure is pinned at one corner.
 Steady Navier-Stokes is solved by Newton's method with a backtracking line
 search on ``|R|``; when it fails, by continuation in the fluid density
 (Reynolds number) from Stokes flow. Every solve reports its history and
-raises :class:`~tofsi.errors.NumericalError` rather than return an
+raises :class:`~tofsi.core.errors.NumericalError` rather than return an
 unconverged state. The Brinkman convexity ``q`` is an input of every call
-(``params``, a :class:`~tofsi.blocks.Continuation`); a solve creates its own
+(``params``, a :class:`~tofsi.core.blocks.Continuation`); a solve creates its own
 linear solver, so its result depends only on its inputs.
 """
 
@@ -32,14 +32,14 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.blocks import Continuation
-from tofsi.errors import InputError, NumericalError
+from tofsi.core.blocks import Continuation
+from tofsi.core.errors import InputError, NumericalError
 from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.geometry import map_points
-from tofsi.interpolation import Brinkman
-from tofsi.iteration import backtracking, forcing_term
-from tofsi.kept import Kept, input_key
+from tofsi.physics.interpolation import Brinkman
+from tofsi.core.iteration import backtracking, forcing_term
+from tofsi.core.kept import Kept, input_key
 from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import resolve
 from tofsi.physics.flow_boundary import FlowBoundary
@@ -351,7 +351,7 @@ class Flow:
             dw[self.bc.fixed] = 0.0
             report.newton_iterations += 1
 
-            def trial(alpha):
+            def trial(alpha, w=w, dw=dw):
                 w_t = w + alpha * dw
                 if alpha == 1.0:                        # keep the Jacobian: next iteration's
                     J_t, R_t, _ = self.jacobian(w_t, x, rho, density, params)

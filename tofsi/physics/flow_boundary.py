@@ -42,11 +42,12 @@ not depend on the mesh motion.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
-from tofsi.errors import InputError
-from tofsi.mesh import SIDES
+from tofsi.core.errors import InputError
+from tofsi.mesh.structured import SIDES
 from tofsi.physics.fluid_elements import TaylorHood
 
 INWARD = {"left": (1.0, 0.0), "right": (-1.0, 0.0), "bottom": (0.0, 1.0), "top": (0.0, -1.0)}
@@ -76,7 +77,7 @@ def side_coordinate(side: str, points: np.ndarray) -> np.ndarray:
 
 
 def openings_from_settings(settings) -> list[Opening]:
-    """The openings a :class:`~tofsi.settings.FluidSettings` describes (see the module doc)."""
+    """The openings a :class:`~tofsi.scene.settings.FluidSettings` describes (see the module doc)."""
     out = [Opening("left", "inflow", y0, y1, U, f"fluid.inlets[{i}]") for i, (y0, y1, U) in enumerate(settings.inlets)]
     out += [Opening("right", "outflow", y0, y1, U, f"fluid.outlets[{i}]")
             for i, (y0, y1, U) in enumerate(settings.outlets)]
@@ -204,7 +205,7 @@ class FlowBoundary:
                                                           f"{o.side} side)")
         for side in SIDES:
             segs = sorted((o for o in self.openings if o.side == side), key=lambda o: o.start)
-            for a, b in zip(segs, segs[1:]):
+            for a, b in pairwise(segs):
                 if b.start < a.end:
                     raise InputError(b.key, [b.start, b.end], f"overlaps {a.key} = {[a.start, a.end]}")
         if not any(o.kind in ("inflow", "uniform") for o in self.openings):

@@ -10,7 +10,7 @@
 
 The flow's unknowns are the velocity ``2 k + i`` on the element type's velocity nodes
 ``k``, then the pressure on the mesh corners. Each record gives the velocity nodes of a
-:class:`~tofsi.mesh.StructuredQuadMesh` (element connectivity, coordinates, the nodes
+:class:`~tofsi.mesh.structured.StructuredQuadMesh` (element connectivity, coordinates, the nodes
 along a side, fine-grid positions for the nested-dissection ordering), the element kernel
 with a body force at its quadrature points, its friction partial ``dR_e/dalpha_e``, its
 shape derivatives, and the velocity shape functions ``N`` ``(G, k)`` at the kernel's

@@ -49,7 +49,7 @@ from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.geometry import physical_gradients
 from tofsi.fem.quadrature import gauss_square
 from tofsi.fem.shapes import shape_functions
-from tofsi.kept import Kept, input_key
+from tofsi.core.kept import Kept, input_key
 
 POINTS, WEIGHTS = gauss_square(2)
 N1, _ = shape_functions(1, POINTS)            # (G, 4)

@@ -54,12 +54,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.blocks import Continuation
+from tofsi.core.blocks import Continuation
 from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.complex_step import corner_derivatives
 from tofsi.fem.geometry import physical_gradients, physical_hessians
 from tofsi.fem.shapes import shape_functions
-from tofsi.kept import Kept, input_key
+from tofsi.core.kept import Kept, input_key
 from tofsi.physics.fluid_elements import TaylorHood
 
 LOAD_FORMS = ("reaction", "stress-divergence", "pressure")
@@ -124,7 +124,7 @@ class FluidForce:
     """The fluid's force on the solid phase of a :class:`~tofsi.physics.flow.Flow` (nodal, on Q1).
 
     form : ``"reaction"``, ``"stress-divergence"`` or ``"pressure"`` (see the module docstring)
-    ``params`` default to :class:`~tofsi.blocks.Continuation` (q, load exponent k).
+    ``params`` default to :class:`~tofsi.core.blocks.Continuation` (q, load exponent k).
     """
 
     def __init__(self, flow, form: str = "reaction"):

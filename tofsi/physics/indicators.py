@@ -14,7 +14,7 @@ it dilates a nodal indicator back to the elements. One step of both,
 grows the solid by one element layer, smoothly: ``L_k = D_k - D_(k-1)`` is the
 k-th layer around the (possibly gray) solid, and for 0/1 densities exactly the
 k-th layer of the breadth-first search over shared nodes
-(:func:`tofsi.layers.element_layers`). Density-dependent layered stiffening
+(:func:`tofsi.mesh.layers.element_layers`). Density-dependent layered stiffening
 (Abdelhamid & Czekanski's proposal for an evolving interface) uses
 
     f_e = 1 + sum_(k=1..K) (c_k - 1) L_k,e,

@@ -1,8 +1,8 @@
 """Mesh motion: a scene's mover between the structure and the fluid mesh.
 
 The one entry point for moving a scene's fluid mesh, used by the coupled
-model (the field ``x`` of :mod:`tofsi.physics.fields`) and by the mesh-motion
-studies (:mod:`tofsi.motion`). Two forms, chosen by the scene:
+model (the field ``x``, :mod:`tofsi.fields.motion`) and by the mesh-motion
+studies (:mod:`tofsi.coupling.motion`). Two forms, chosen by the scene:
 
 * explicit interface (scenes without a design region): the non-solid quads
   move; every solid node follows the structure (``x = u``) and every channel
@@ -20,7 +20,7 @@ counted from the interface of the fixed solid, or in design scenes, with
 densities themselves (:class:`~tofsi.physics.indicators.DensityLayers`): the
 stiffening follows the evolving design and is differentiable in rho.
 With ``mover.band`` only the quads of a band around the structure move, the
-band's outer edge held fixed (:mod:`tofsi.band`); every map below keeps its
+band's outer edge held fixed (:mod:`tofsi.mesh.band`); every map below keeps its
 full size (2n), the nodes outside the band being fixed ones.
 """
 
@@ -31,12 +31,12 @@ import scipy.sparse as sp
 
 import movers
 from movers.base import MotionProblem, MoveResult
-from tofsi.band import find_band
-from tofsi.kept import Kept, input_key
-from tofsi.layers import element_layers, stiffening_field
+from tofsi.mesh.band import find_band
+from tofsi.core.kept import Kept, input_key
+from tofsi.mesh.layers import element_layers, stiffening_field
 from tofsi.linalg import LinearAlgebra
 from tofsi.linalg.backends import resolve
-from tofsi.mesh import FLUID, SOLID
+from tofsi.mesh.structured import FLUID, SOLID
 from tofsi.physics.indicators import DensityLayers, solid_indicator
 
 __all__ = ["MeshMotion", "solid_indicator"]

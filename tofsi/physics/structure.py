@@ -14,7 +14,7 @@ then grows like ``rho^(1 - p)`` as it empties, ``k = p`` keeps it bounded
 (robust two-way coupling).
 
 The SIMP exponent ``p`` and the load exponent ``k`` are inputs of every call
-(a :class:`~tofsi.blocks.Continuation`), never stored state. Partial
+(a :class:`~tofsi.core.blocks.Continuation`), never stored state. Partial
 derivatives: ``S_u = K_s`` (constrained; at finite strain the tangent at
 ``u``), ``S_w = -df/dw``, ``S_x = -df/dx`` (the load acts on the moved mesh:
 a follower load in two-way coupling) and ``S_rho = dR_int/drho - df/drho``
@@ -27,15 +27,15 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from tofsi.blocks import Continuation
-from tofsi.errors import InputError, NumericalError
+from tofsi.core.blocks import Continuation
+from tofsi.core.errors import InputError, NumericalError
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.elasticity import element_stiffness, lame
-from tofsi.interpolation import SIMP
+from tofsi.physics.interpolation import SIMP
 from tofsi.linalg import AMGSolver, DirectSolver, LinearAlgebra, nested_dissection, rigid_body_modes
 from tofsi.linalg.backends import resolve
-from tofsi.mesh import DESIGN, SOLID
+from tofsi.mesh.structured import DESIGN, SOLID
 from tofsi.physics.finite_strain import FiniteStrainElasticity, FiniteStrainSolution
 from tofsi.physics.fluid_load import FluidForce
 
@@ -68,7 +68,7 @@ class Structure:
     """Elasticity of the unified domain, loaded by a :class:`~tofsi.physics.flow.Flow`.
 
     ``params`` arguments default to the settings' load exponent and the
-    default SIMP exponent (:class:`~tofsi.blocks.Continuation`); ``linear_algebra`` is the
+    default SIMP exponent (:class:`~tofsi.core.blocks.Continuation`); ``linear_algebra`` is the
     model's backend (default: superlu, or the process default).
     """
 
@@ -148,7 +148,7 @@ class Structure:
     # ---- residual, solve and partials ----------------------------------------------
     def residual(self, u, w, x, rho, params=None) -> np.ndarray:
         """``S = R_int(u; rho) - f(w, x, rho)`` (unconstrained); at finite strain an element that
-        inverts raises :class:`~tofsi.errors.NumericalError`."""
+        inverts raises :class:`~tofsi.core.errors.NumericalError`."""
         finite = self.finite(params)
         if finite is not None:
             return finite.internal_forces(u, rho, self.simp(params)) - self.load(w, x, rho, params)

@@ -1,0 +1,403 @@
+"""An ordered set of field blocks, and the forward solve of the coupled problem they make.
+
+The blocks' ``inputs`` draw a dependency graph. Its strongly connected
+components, in topological order, are solved one after the other:
+
+* a block that depends on nothing later is solved once (one-way coupling:
+  the flow, then the structure loaded by it);
+* a cycle (two-way coupling: flow -> structure -> mesh motion -> flow) is
+  solved either
+
+  - partitioned: Gauss-Seidel sweeps over its blocks in the system's order,
+    the ``relax`` field's next value from the interface quasi-Newton method
+    (:class:`~tofsi.core.iteration.InterfaceQuasiNewton`), until its relative
+    change ``|z~ - z| / |z~|`` is at most ``tol``; the blocks before it in
+    the sweep are then solved once more, so every field is consistent; or
+  - monolithic: Newton on the block Jacobian ``[[dR_a/dz_b]]`` (every block of
+    the cycle needs a residual form; kept as its blocks, :class:`~tofsi.linalg.BlockMatrix`), with
+    a backtracking line search on the largest block residual scaled by the
+    block's force scale. Each Newton step is solved inexactly, to the
+    Eisenstat-Walker relative tolerance (:func:`tofsi.core.iteration.forcing_term`;
+    convergence is judged on the true residual), by GMRES preconditioned with
+    block Gauss-Seidel over the fields' own factorizations (``linear_solver =
+    "block"``, :class:`~tofsi.linalg.BlockGaussSeidel`; the whole Jacobian's LU
+    when GMRES fails) or by the whole Jacobian's LU (``"direct"``), either kept
+    for the later iterates and the adjoint. With ``quasi_newton`` the couplings a block marks as
+    slow to build and slow to change (``FieldBlock.slow_couplings``: the shape
+    derivatives with respect to the mesh motion) are built at the first
+    iterate and kept while the Newton contracts (a step that leaves more than
+    ``SLOW_CONTRACTION`` of the residual rebuilds them at its iterate); the
+    converged state's exact couplings are built once, for the adjoint. A Newton
+    whose residual falls by less than ``STALL_FACTOR`` in ``STALL_ITERATIONS``
+    steps stops early (a load step's cutback is cheaper than its crawl).
+
+Both report their history and raise :class:`~tofsi.core.errors.NumericalError`
+when they do not converge. The system also gives the split of a stacked
+vector into fields, the monolithic Jacobian and its fill-reducing ordering,
+and the list of fields a checkpoint stores -- so adding a field is adding a
+block.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from tofsi.core.blocks import Continuation, FieldBlock, Linearization, State
+from tofsi.core.errors import InputError, NumericalError
+from tofsi.core.iteration import InterfaceQuasiNewton, backtracking, forcing_term
+from tofsi.linalg import BlockGaussSeidel, BlockMatrix, LinearAlgebra, RecyclingSolver, nested_dissection
+from tofsi.linalg.backends import canonical_csr, resolve
+
+log = logging.getLogger(__name__)
+EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exactly" (after a failed line search)
+SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
+STALL_ITERATIONS = 8     # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
+STALL_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class CouplingSettings:
+    """How cycles are solved: ``method`` partitioned or monolithic, tolerance, iterations,
+    the first relaxation factor (partitioned), the relaxed field, and (monolithic) whether
+    the shape couplings are kept (``quasi_newton``) and the Newton's ``linear_solver``."""
+
+    method: str = "partitioned"
+    tol: float = 1e-9
+    max_iter: int = 60
+    relaxation: float = 0.5
+    relax: str | None = None
+    quasi_newton: bool = True
+    linear_solver: str = "block"
+
+
+class CoupledLinearization:
+    """The monolithic Jacobian of a cycle at its solution and the Newton's factorization."""
+
+    def __init__(self, system: "BlockSystem", names: tuple[str, ...], lins: dict, solver):
+        self.system, self.names, self.lins, self.solver = system, names, lins, solver
+        self._J = None
+
+    def matrix(self) -> BlockMatrix:
+        if self._J is None:
+            self._J = self.system.block_jacobian(self.lins, self.names)
+        return self._J
+
+    def solve_transpose(self, b: np.ndarray) -> np.ndarray:
+        return self.solver.solve_transpose(self.matrix(), b)
+
+
+class BlockSystem:
+    """Field blocks in a fixed order, their dependency components and the coupled solve.
+
+    linear_algebra : the model's :class:`~tofsi.linalg.LinearAlgebra` for the monolithic
+    Newton's factorizations (default: the process's backend)."""
+
+    def __init__(self, blocks, settings: CouplingSettings | None = None,
+                 linear_algebra: LinearAlgebra | None = None):
+        self.blocks = tuple(blocks)
+        self.settings = settings or CouplingSettings()
+        self.linear_algebra = linear_algebra or LinearAlgebra(backend=resolve())
+        self.names = tuple(b.name for b in self.blocks)
+        if len(set(self.names)) != len(self.names):
+            raise ValueError(f"field names must be unique: {self.names}")
+        self.by_name = {b.name: b for b in self.blocks}
+        for b in self.blocks:
+            unknown = set(b.inputs) - set(self.names)
+            if unknown:
+                raise ValueError(f"block {b.name!r} depends on fields no block provides: {sorted(unknown)}")
+        self.components = self._components()
+        if self.settings.method == "monolithic":
+            for comp in self.cycles:
+                explicit = [n for n in comp if not self.by_name[n].has_residual]
+                if explicit:
+                    raise InputError("coupled.method", "monolithic",
+                                     f"field {explicit[0]!r} is an explicit (path-dependent) map "
+                                     "without a residual form; use 'partitioned' or 'auto'")
+        sizes = [b.size for b in self.blocks]
+        self.offsets = dict(zip(self.names, np.cumsum([0, *sizes])[:-1].astype(int), strict=True))
+        self.size = int(sum(sizes))
+        self._orderings: dict[tuple[str, ...], np.ndarray | None] = {}
+
+    # ---- structure ------------------------------------------------------------------
+    def _components(self) -> list[tuple[str, ...]]:
+        """Strongly connected components of the dependency graph, in an order that solves
+        every component after the ones it depends on (ties: the blocks' order)."""
+        n = len(self.names)
+        index = {name: i for i, name in enumerate(self.names)}
+        reach = np.eye(n, dtype=bool)                  # reach[i, j]: i depends (transitively) on j
+        for b in self.blocks:
+            for other in b.inputs:
+                reach[index[b.name], index[other]] = True
+        for k in range(n):                              # Warshall's transitive closure
+            reach |= reach[:, [k]] & reach[[k], :]
+        comps, seen = [], set()
+        for i, name in enumerate(self.names):
+            if name not in seen:
+                comp = tuple(self.names[j] for j in range(n) if reach[i, j] and reach[j, i])
+                comps.append(comp)
+                seen.update(comp)
+        ordered, done = [], set()
+        while comps:
+            for comp in comps:
+                needs = {o for name in comp for o in self.by_name[name].inputs} - set(comp)
+                if needs <= done:
+                    ordered.append(comp)
+                    done.update(comp)
+                    comps.remove(comp)
+                    break
+        return ordered
+
+    @property
+    def cycles(self) -> list[tuple[str, ...]]:
+        return [c for c in self.components if len(c) > 1]
+
+    def method_for(self, comp) -> str:
+        """How a cycle is solved: the settings' method; ``auto`` is monolithic when every block
+        of the cycle has a residual form, partitioned otherwise."""
+        if self.settings.method != "auto":
+            return self.settings.method
+        return "monolithic" if all(self.by_name[n].has_residual for n in comp) else "partitioned"
+
+    def relaxed_field(self, comp: tuple[str, ...]) -> str:
+        """The field a partitioned sweep over ``comp`` relaxes (and measures convergence on)."""
+        return self.settings.relax if self.settings.relax in comp else comp[-1]
+
+    def with_blocks(self, *extra: FieldBlock) -> "BlockSystem":
+        """The same system with more blocks."""
+        return BlockSystem(self.blocks + tuple(extra), self.settings, self.linear_algebra)
+
+    def split(self, z: np.ndarray, names=None) -> dict[str, np.ndarray]:
+        """A stacked vector (in the order of ``names``) as fields."""
+        names = self.names if names is None else names
+        out, start = {}, 0
+        for name in names:
+            size = self.by_name[name].size
+            out[name] = z[start:start + size]
+            start += size
+        return out
+
+    def jacobian(self, lins: dict[str, Linearization], names, kept: dict | None = None) -> sp.csr_matrix:
+        """The block Jacobian ``[[dR_a/dz_b]]`` of the fields ``names`` from their linearizations
+        (``kept``: couplings ``(a, b) -> matrix`` to use instead, quasi-Newton)."""
+        kept = kept or {}
+        rows = []
+        for a in names:
+            lin = lins[a]
+            blocks = [lin.matrix() if b == a else kept[(a, b)] if (a, b) in kept else
+                      (lin.coupling(b) if b in self.by_name[a].inputs else None) for b in names]
+            rows.append(sp.hstack([canonical_csr(B) if B is not None else      # CSR fast paths:
+                                   sp.csr_matrix((self.by_name[a].size, self.by_name[b].size))
+                                   for B, b in zip(blocks, names, strict=True)], format="csr"))
+        return sp.vstack(rows, format="csr")                    # no COO round trip, unlike bmat
+
+    def block_jacobian(self, lins: dict[str, Linearization], names, kept: dict | None = None) -> BlockMatrix:
+        """The block Jacobian of :meth:`jacobian` kept as its blocks (products, a block
+        preconditioner's diagonal blocks), assembled by nobody unless a whole-matrix LU asks."""
+        kept = kept or {}
+        blocks = {}
+        for i, a in enumerate(names):
+            lin = lins[a]
+            for j, b in enumerate(names):
+                B = (lin.matrix() if b == a else kept[(a, b)] if (a, b) in kept else
+                     (lin.coupling(b) if b in self.by_name[a].inputs else None))
+                if B is not None:
+                    blocks[(i, j)] = B if sp.isspmatrix_csr(B) else sp.csr_matrix(B)
+        return BlockMatrix(blocks, [self.by_name[n].size for n in names])
+
+    def ordering(self, names) -> np.ndarray | None:
+        """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid);
+        computed once per tuple of names (the blocks' grids never change)."""
+        names = tuple(names)
+        if names not in self._orderings:
+            self._orderings[names] = self._nested_dissection(names)
+        return self._orderings[names]
+
+    def _nested_dissection(self, names) -> np.ndarray | None:
+        grids = [self.by_name[n].ordering_grid() for n in names]
+        if any(g is None for g in grids):
+            return None
+        coords = np.vstack([g[0] for g in grids])
+        last = np.concatenate([g[1] for g in grids])
+        return nested_dissection(coords, last=last)
+
+    def linear_solver(self, comp, kind: str | None = None) -> RecyclingSolver:
+        """The Newton's linear solver of the cycle ``comp`` (``kind``: else the settings'
+        ``linear_solver``): ``block``, GMRES preconditioned by block Gauss-Seidel over the
+        fields' own factorizations (:class:`~tofsi.linalg.BlockGaussSeidel`), kept for the
+        later iterates and the adjoint while it stays cheap; ``direct``, the LU of the whole
+        Jacobian, whose factors precondition GMRES for the later iterates and the adjoint."""
+        kind = kind or self.settings.linear_solver
+        direct = self.linear_algebra.direct
+        if kind == "direct":
+            perm = self.ordering(comp)
+            return RecyclingSolver(lambda A: direct(A.tocsr() if isinstance(A, BlockMatrix) else A, perm=perm))
+        orderings = [self.ordering((n,)) for n in comp]
+        return RecyclingSolver(lambda A: BlockGaussSeidel(A, orderings=orderings, direct=direct))
+
+    # ---- forward solve ------------------------------------------------------------------
+    def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,
+              progress=None) -> State:
+        """Every field for densities ``rho``; ``guess`` (a state) warm-starts the solvers."""
+        fields = {name: None for name in self.names}
+        if guess is not None:
+            for name in self.names:
+                if guess.fields.get(name) is not None:
+                    fields[name] = np.array(guess.fields[name], dtype=float)
+        state = State(rho=rho, params=params)
+        for comp in self.components:
+            if len(comp) == 1:
+                fields[comp[0]] = self._solve_block(comp[0], fields, state, progress)
+            elif self.method_for(comp) == "monolithic":
+                self._monolithic(comp, fields, state)
+            else:
+                self._partitioned(comp, fields, state, progress)
+        state.fields = fields
+        state.converged = True
+        return state
+
+    def _solve_block(self, name, fields, state, progress=None, previous=None):
+        block = self.by_name[name]
+        value, lin, report = block.solve(fields, state.rho, state.params, guess=fields.get(name),
+                                         previous=previous, progress=progress)
+        state.linearizations[name] = lin
+        if report is not None and block.report_name:
+            state.reports[block.report_name] = report
+        return value
+
+    def _start(self, comp, fields, state, progress) -> None:
+        """Fill the fields of ``comp`` that have no guess: one sweep in order (each block
+        solved with the latest values of the others, absent ones at their initial value)."""
+        if all(fields[n] is not None for n in comp):
+            return
+        for name in comp:
+            if fields[name] is None:
+                fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
+        for name in comp:
+            fields[name] = self._solve_block(name, fields, state, progress)
+
+    def _partitioned(self, comp, fields, state, progress) -> None:
+        s = self.settings
+        relax = self.relaxed_field(comp)
+        for name in comp:
+            if fields[name] is None:
+                fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
+        accelerator, history = InterfaceQuasiNewton(s.relaxation), []
+        at = comp.index(relax)
+        for k in range(s.max_iter):
+            for name in comp[:at]:
+                fields[name] = self._solve_block(name, fields, state, progress,
+                                                 state.linearizations.get(name))
+            new = self._solve_block(relax, fields, state, progress, state.linearizations.get(relax))
+            change = float(np.linalg.norm(new - fields[relax]) / max(np.linalg.norm(new), 1e-300))
+            history.append({"iteration": k, "relative_change": change})
+            log.info("partitioned coupling %d: relative change of %s %.3e", k, relax, change)
+            converged = change <= s.tol
+            fields[relax] = new if converged else accelerator.next(fields[relax], new)
+            for name in comp[at + 1:]:
+                fields[name] = self._solve_block(name, fields, state, progress,
+                                                 state.linearizations.get(name))
+            if converged:
+                for name in comp[:at]:              # consistent with the final later fields
+                    fields[name] = self._solve_block(name, fields, state, progress,
+                                                     state.linearizations.get(name))
+                state.reports["coupling"] = {"method": "partitioned", "history": history}
+                return
+        raise NumericalError(f"partitioned coupling did not converge in {s.max_iter} iterations",
+                             {"history": history})
+
+    def _monolithic(self, comp, fields, state) -> None:
+        s = self.settings
+        rho, params = state.rho, state.params
+        self._start(comp, fields, state, None)
+        solver = self.linear_solver(comp)
+        blocks = [self.by_name[n] for n in comp]
+        scales, history, kept = None, [], None
+
+        def merit(values: dict, linearize: bool = False) -> tuple[float, dict | None]:
+            """The largest scaled residual norm at ``values``; with ``linearize`` read from the
+            blocks' linearizations there (returned too), so that the Jacobians of an accepted
+            full step come from the same element passes as its residuals."""
+            lins_at = {b.name: b.linearize(values, rho, params) for b in blocks} if linearize else None
+            residuals = ([lins_at[b.name].residual for b in blocks] if linearize
+                         else [b.residual(values, rho, params) for b in blocks])
+            return max(float(np.linalg.norm(r)) / sc for r, sc in zip(residuals, scales, strict=True)), lins_at
+
+        accepted = None                                 # the accepted full step's linearizations
+        for it in range(s.max_iter + 1):
+            lins = accepted or {b.name: b.linearize(fields, rho, params) for b in blocks}
+            R = [lins[b.name].residual for b in blocks]
+            if scales is None:
+                scales = [b.residual_scale(fields, rho, params, lins[b.name]) for b in blocks]
+            norms = [float(np.linalg.norm(r)) / sc for r, sc in zip(R, scales, strict=True)]
+            history.append({"iteration": it, **dict(zip(comp, norms, strict=True))})
+            log.info("monolithic Newton %d: scaled residuals %s", it,
+                     ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms, strict=True)))
+            if max(norms) <= s.tol:
+                state.linearizations.update(lins)
+                state.coupled[comp] = CoupledLinearization(self, comp, lins, solver)
+                state.reports["coupling"] = {"method": "monolithic", "history": history}
+                return
+            if it == s.max_iter:
+                break
+            merits = [max(h[n] for n in comp) for h in history]
+            if it >= STALL_ITERATIONS and merits[-1] * STALL_FACTOR > merits[-1 - STALL_ITERATIONS]:
+                raise NumericalError(
+                    f"monolithic coupling stagnated: the largest scaled residual fell from "
+                    f"{merits[-1 - STALL_ITERATIONS]:.3g} to {merits[-1]:.3g} in {STALL_ITERATIONS} Newton steps",
+                    {"history": history})
+            if kept and it > 0 and merits[-1] > SLOW_CONTRACTION * merits[-2]:   # kept ones gone stale
+                log.info("monolithic Newton %d: the residual contracted by only %.2f; the slow couplings "
+                         "of this iterate from here on", it, merits[-1] / merits[-2])
+                history[-1]["couplings_rebuilt"] = True
+                kept = None
+            if kept is None and s.quasi_newton:         # the slow couplings of the first iterate (or a later)
+                kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
+                        for o in getattr(b, "slow_couplings", ()) if o in comp}
+            b = -np.concatenate(R)
+            eta = forcing_term(merits, s.tol)           # inexact Newton
+            found, solver = self._newton_step(comp, lins, kept, b, eta, solver, fields, merit, max(norms),
+                                              history)
+            if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
+                log.info("monolithic Newton %d: no decrease along the %s step; the exact Newton step "
+                         "from here on", it, "quasi-Newton" if kept else "inexact")
+                history[-1]["exact_step"] = True
+                kept = {}                                      # the true couplings from here on
+                found, solver = self._newton_step(comp, lins, kept, b, EXACT_STEP, solver, fields, merit,
+                                                  max(norms), history)
+            if found is None:
+                raise NumericalError("monolithic coupling: line search found no decrease",
+                                     {"history": history})
+            values, accepted = found[1]
+            if found[0] < 1.0:
+                log.info("monolithic Newton %d: step length %g", it, found[0])
+            fields.update(values)
+        raise NumericalError(f"monolithic coupling did not converge in {s.max_iter} Newton iterations",
+                             {"history": history})
+
+    def _newton_step(self, comp, lins, kept, b, rtol, solver, fields, merit, norm, history):
+        """One Newton step of the monolithic solve: the block Jacobian (with the ``kept`` couplings)
+        solved to ``rtol``, then the backtracking line search on the merit. Returns ``(the accepted
+        fields or None, the solver)`` -- the whole Jacobian's LU when GMRES fails."""
+        J = self.block_jacobian(lins, comp, kept)
+        try:
+            step = solver.solve(J, b, rtol=rtol)
+        except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
+            log.warning("monolithic Newton %d: %s; factorizing the whole Jacobian instead", len(history) - 1, err)
+            history[-1]["fallback"] = "direct"
+            solver = self.linear_solver(comp, "direct")
+            step = solver.solve(J, b, rtol=rtol)
+        dz = self.split(step, comp)
+
+        def trial(alpha):                         # the full step linearized: the next iterate's
+            values = dict(fields)
+            values.update({n: fields[n] + alpha * dz[n] for n in comp})
+            value, lins_at = merit(values, linearize=(alpha == 1.0))
+            return value, (values, lins_at)
+        found = backtracking(norm, trial)
+        if found is not None:
+            history[-1]["step_length"] = found[0]
+        return found, solver
