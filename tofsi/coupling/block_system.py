@@ -55,7 +55,7 @@ from tofsi.linalg.backends import canonical_csr, resolve
 log = logging.getLogger(__name__)
 EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exactly" (after a failed line search)
 SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
-STALL_ITERATIONS = 8     # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
+STALL_ITERATIONS = 16    # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
 STALL_FACTOR = 2.0
 
 

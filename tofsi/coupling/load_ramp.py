@@ -12,10 +12,13 @@ fails, in one of two parameters:
   across a stage whose projection is sharper): the densities go
   ``rho_t = (1 - t) rho_guess + t rho`` from ``t = 0`` (the warm start's own,
   where it is a solution) to ``t = 1``. Each step is a design change like an
-  optimizer's, solved from the last step's state; a design the path cannot
-  reach fails after a few short steps (an optimizer's trial design falls
-  back: :mod:`tofsi.optimization.optimize`);
-* **the inflow**, otherwise (or when the densities' path fails): the flow's
+  optimizer's, solved from the last step's state. A design this path cannot
+  reach from a solved neighbour fails after a few short steps (an optimizer's
+  trial design then falls back, a stage's first design is bridged:
+  :mod:`tofsi.optimization.optimize`): an inflow ramp from rest, which throws
+  the neighbour's state away, failed on every such design of the large scene
+  as well, after 24 s more (80 x 40);
+* **the inflow**, otherwise (a warm start of the one-way problem): the flow's
   prescribed boundary velocities scaled by ``lambda`` (``Continuation.load``;
   the structure's load and the mesh motion follow), from rest (the state at
   ``lambda = 0``) to the full inflow, the first step to half of it, since a
@@ -54,9 +57,9 @@ Solve = Callable[[Continuation, "State | None", np.ndarray], State]
 def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: float, rho: np.ndarray,
            fields: tuple[str, ...] = ()) -> State:
     """``solve(params, guess, rho)`` at the full load, or, when that fails, along a path in the
-    densities (a ``guess`` holding every field of ``fields`` at other densities) and then in the
-    inflow (see the module docstring). Raises :class:`NumericalError` naming the last converged
-    load when an inflow step below ``min_step`` still fails."""
+    densities (a ``guess`` holding every field of ``fields`` at other densities) or else in the
+    inflow (see the module docstring). Raises :class:`NumericalError` naming how far the path got
+    when its step below the smallest (``min_step`` for the inflow) still fails."""
     try:
         return solve(params, guess, rho)
     except NumericalError as direct:
@@ -65,19 +68,16 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
         log.info("coupled solve failed from the previous design's state (%s); continuing in the densities "
                  "from that design's", first_failure)
         rho0 = np.asarray(guess.rho, dtype=float)
-        try:
-            state, report = _continue(lambda t, start: solve(params, start, (1.0 - t) * rho0 + t * rho),
-                                      guess, FIRST_DENSITY_STEP, MIN_DENSITY_STEP, "design")
-            state.reports["density_ramp"] = {**report, "full_load_failure": str(first_failure)}
-            return state
-        except NumericalError as err:
-            log.info("the densities' path failed (%s); ramping the inflow from rest", err)
-    else:
-        log.info("coupled solve failed at the full load (%s); ramping the inflow from rest", first_failure)
+        state, report = _continue(lambda t, start: solve(params, start, (1.0 - t) * rho0 + t * rho),
+                                  guess, FIRST_DENSITY_STEP, MIN_DENSITY_STEP,
+                                  "continuation in the densities from the previous design's")
+        state.reports["density_ramp"] = {**report, "full_load_failure": str(first_failure)}
+        return state
+    log.info("coupled solve failed at the full load (%s); ramping the inflow from rest", first_failure)
     try:
         state, report = _continue(lambda t, start: solve(dataclasses.replace(params, load=params.load * t),
                                                           start, rho),
-                                  None, FIRST_STEP, min_step, "inflow")
+                                  None, FIRST_STEP, min_step, "inflow ramp")
     except NumericalError as err:
         raise NumericalError(
             f"load continuation stopped at {err.diagnostic['reached']:.4g} of the inflow (a step of "
@@ -110,15 +110,15 @@ def _continue(step_solve, start: State | None, first: float, min_step: float, wh
         except NumericalError as err:
             cutbacks += 1
             step *= 0.5
-            log.info("%s step to %.4g failed (%s); cut back to %.4g", what, trial, err, step)
+            log.info("%s: the step to %.4g of the way failed (%s); cut back to %.4g", what, trial, err, step)
             if step < min_step:
-                raise NumericalError(f"{what} continuation stopped at {t:.4g} (a step to {trial:.4g} failed: "
+                raise NumericalError(f"{what} stopped at {t:.4g} of the way (a step to {trial:.4g} failed: "
                                      f"{err})", {**err.diagnostic, "reached": t, "failed": trial, "step": 2 * step,
                                                  "steps": steps, "cutbacks": cutbacks},
                                      state=err.state) from err
             continue
         t = trial
         steps.append(t)
-        log.info("%s step %d: %.4g of the way converged", what, len(steps), t)
+        log.info("%s: step %d, %.4g of the way, converged", what, len(steps), t)
         step = min(GROWTH * step, 1.0)
     return state, {"steps": steps, "cutbacks": cutbacks}
