@@ -48,7 +48,7 @@ from tofsi.core.errors import NumericalError
 log = logging.getLogger(__name__)
 FIRST_STEP = 0.5           # the inflow ramp's first step, from rest
 FIRST_DENSITY_STEP = 0.5   # the densities' first step, from the warm start's
-MIN_DENSITY_STEP = 0.125   # the densities' smallest step (a trial design it cannot reach fails soon)
+MIN_DENSITY_STEP = 0.25    # the densities' smallest step: a trial design the path cannot reach fails after two tries
 GROWTH = 1.5               # a converged step's successor is this much longer (at most to the end)
 
 Solve = Callable[[Continuation, "State | None", np.ndarray], State]
