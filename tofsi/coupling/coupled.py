@@ -6,7 +6,7 @@ a scene's effects decide which are active -- no fluid -> no ``w``; no structure
 reference mesh and the mover is never called). Their blocks go into a
 :class:`~tofsi.coupling.block_system.BlockSystem`, which solves them in dependency
 order -- one-way: the flow, then the structure; two-way: the cycle flow ->
-structure -> mesh -> flow, partitioned (Aitken-relaxed on ``u``) or by
+structure -> mesh -> flow, partitioned (sweeps, ``u``'s next value by IQN-ILS) or by
 monolithic Newton on
 
       | S_u  S_x  S_w |
