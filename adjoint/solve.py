@@ -16,8 +16,8 @@ The system's dependency components are visited in reverse order:
 * any other cycle (also with an explicit, path-dependent map, whose
   "solve" is the identity and whose partials are its vector-Jacobian
   product): block Gauss-Seidel sweeps in the reverse of the forward order,
-  the relaxed field's multiplier relaxed with Aitken's factor, until its
-  relative change is below ``tol``.
+  written as the linear fixed point they iterate and solved by GMRES to
+  ``tol`` (one sweep per iteration).
 
 The adjoint never names a physics: it reads the blocks' linearizations kept
 in the state. It refuses a state the forward solve did not report converged.
@@ -26,9 +26,12 @@ in the state. It refuses a state the forward solve did not report converged.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse.linalg as spla
 
 from tofsi.core.errors import NumericalError
-from tofsi.core.iteration import aitken
+
+RESTARTS = 4         # GMRES runs of a partitioned cycle's adjoint, each checked against the true residual
+FLOOR = 1e-8         # the largest relative residual an adjoint accepts where the sweeps' own solves stop it
 
 
 class Adjoint:
@@ -73,10 +76,11 @@ class Adjoint:
             elif method == "monolithic":
                 lam = self._monolithic(comp, bars)
             else:
-                lam = self._gauss_seidel(comp, bars)
+                lam, partials = self._gauss_seidel(comp, bars)
             self.reports.append({"method": method, "fields": list(comp)})
             for name in comp:                              # to the fields upstream, and to rho
-                inputs, rho_bar = lins[name].transpose_partials(lam[name])
+                inputs, rho_bar = (partials[name] if method == "block Gauss-Seidel"
+                                   else lins[name].transpose_partials(lam[name]))
                 for other, bar in inputs.items():
                     if other not in comp:
                         bars[other] = bars[other] + bar
@@ -89,32 +93,63 @@ class Adjoint:
         lam = coupled.solve_transpose(-np.concatenate([bars[n] for n in comp]))
         return self.system.split(lam, comp)
 
-    def _gauss_seidel(self, comp, bars) -> dict:
+    def _gauss_seidel(self, comp, bars) -> tuple[dict, dict]:
+        """Reverse block Gauss-Seidel over ``comp`` as a linear fixed point, solved by GMRES.
+
+        A sweep in the reverse of the forward order solves each block's transposed system with
+        what flows into it from the others: from the blocks before it in the sweep, their
+        multipliers of this sweep; from those after it (the backward edges), last sweep's. With
+        ``y`` the backward edges' contributions, a sweep is an affine map ``y -> T(y) = G y + c``
+        and the multipliers solve ``(I - G) y = c``: GMRES on it, one sweep per iteration (a
+        path-dependent mover's sweep is a reverse pass through its increments, so the sweeps are
+        what an adjoint costs; GMRES needs as many as the coupling has significant modes, where
+        relaxed sweeps crawl, or diverge on a mode the loop amplifies). Returns the multipliers
+        and each block's transposed partials at them (from the last sweep).
+        """
         lins = self.state.linearizations
-        relax = self.system.relaxed_field(comp)
         sweep = tuple(reversed(comp))
-        lam = {n: np.zeros(self.system.by_name[n].size) for n in comp}
-        into = {n: {} for n in comp}                       # into[b][c] = (dR_c/dz_b)^T lam_c
-        omega, r_previous, history = 1.0, None, []
-        for it in range(self.max_iter):
-            change = 0.0
+        order = {n: i for i, n in enumerate(sweep)}
+        edges = [(b, c) for c in comp for b in self.system.by_name[c].inputs
+                 if b in comp and order[b] < order[c]]          # c's partial feeds b, earlier in the sweep
+        sizes = [self.system.by_name[b].size for b, _ in edges]
+        starts = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+
+        def run(y):
+            into = {n: {} for n in comp}
+            for k, (b, c) in enumerate(edges):
+                into[b][c] = y[starts[k]:starts[k + 1]]
+            lam, partials = {}, {}
             for b in sweep:
                 rhs = bars[b] + sum(into[b].values(), np.zeros(bars[b].size))
-                new = lins[b].solve_transpose(-rhs)
-                if b == relax:
-                    r = new - lam[b]
-                    change = float(np.linalg.norm(r) / max(np.linalg.norm(new), 1e-300))
-                    omega = aitken(omega, r, r_previous)
-                    new = new if it == 0 else lam[b] + omega * r
-                    r_previous = r if it > 0 else None
-                lam[b] = new
-                inputs, _ = lins[b].transpose_partials(new)
-                for other, bar in inputs.items():
+                lam[b] = lins[b].solve_transpose(-rhs)
+                partials[b] = lins[b].transpose_partials(lam[b])
+                for other, bar in partials[b][0].items():
                     if other in comp:
                         into[other][b] = bar
-            history.append(change)
-            if it > 0 and change <= self.tol:
-                self.reports.append({"method": "block Gauss-Seidel", "history": history})
-                return lam
-        raise NumericalError(f"adjoint block Gauss-Seidel did not converge in {self.max_iter} sweeps",
-                             {"history": history})
+            out = np.concatenate([into[b][c] for b, c in edges]) if edges else np.zeros(0)
+            return out, lam, partials
+
+        sweeps = [1]
+        c0, lam, partials = run(np.zeros(starts[-1]))
+        history = []
+        if edges and np.any(c0):
+            def matvec(v):
+                sweeps[0] += 1
+                return v - (run(v)[0] - c0)
+            operator = spla.LinearOperator((starts[-1],) * 2, matvec=matvec)
+            y, goal, residual = c0, self.tol * float(np.linalg.norm(c0)), np.inf
+            for _ in range(RESTARTS):                  # GMRES's own residual estimate can run ahead of
+                y, _ = spla.gmres(operator, c0, x0=y, rtol=0.0, atol=goal, restart=self.max_iter,
+                                  maxiter=1, callback=lambda r: history.append(float(r)),
+                                  callback_type="pr_norm")
+                out, lam, partials = run(y)            # the true one (the sweeps' solves are inexact)
+                sweeps[0] += 1
+                previous, residual = residual, float(np.linalg.norm(out - y))
+                if not np.all(np.isfinite(y)) or residual <= goal or residual > 0.1 * previous:
+                    break
+            relative = residual / float(np.linalg.norm(c0))
+            if not np.all(np.isfinite(y)) or relative > FLOOR:
+                raise NumericalError(f"adjoint block Gauss-Seidel did not converge in {len(history)} GMRES "
+                                     f"iterations (relative residual {relative:.2e})", {"history": history})
+        self.reports.append({"method": "block Gauss-Seidel", "sweeps": sweeps[0], "history": history})
+        return lam, partials

@@ -317,7 +317,7 @@ def recommendations(results: dict) -> list[str]:
     if "coupling" in results:
         d = default_row(results["coupling"])
         mono = [r for r in results["coupling"] if r["method"] == "monolithic" and r["error"] <= d["error"]]
-        text = (f"* Two-way coupling: partitioned (Aitken) at tol = {d['tol']:g} takes {d['time_s']:.2f} s "
+        text = (f"* Two-way coupling: partitioned (IQN-ILS) at tol = {d['tol']:g} takes {d['time_s']:.2f} s "
                 f"(error {d['error']:.1e})")
         if mono:
             best = min(mono, key=lambda r: r["time_s"])

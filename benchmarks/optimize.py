@@ -11,11 +11,27 @@ memory. Target: at most 4 s per iteration and 4 GB on two cores.
 made of -- fluid kernel passes (with and without the Jacobian), sparse
 factorizations and triangular solves (SuperLU or PARDISO), each with its time
 -- and prints the iteration's time over its factorizations' (issue 23's "at
-its floor": at most 1.5 one-way). ``--two-way`` runs the headline two-way
-scene (``beam_in_channel_optimization_fsi``) two-way from its first iteration.
+its floor": at most 1.5 one-way). Times are process CPU seconds (the machine
+is shared).
+
+``--large`` runs the large-deformation scene (``beam_in_channel_optimization_large``)
+through its three one-way stages and then ``--iterations`` design iterations
+of its first two-way stage (beta 8, finite strain; issue 32), and reports what
+that stage costs: the first two-way iteration (the stage's first two-way solve
+from the one-way state, its adjoint and MMA), the warm two-way iterations
+after it (median; with ``--floor``, their pieces and their time over their
+factorizations), the warm one-way iterations of the last one-way stage
+(median), and the ratios issue 32 sets targets for: warm two-way / its
+factorizations, first two-way / warm two-way, warm two-way / warm one-way.
+
+``--schedule`` runs the large scene's whole schedule (every stage, as ``tofsi
+optimize`` does, at ``--elements-x``) and reports per stage its design
+iterations, CPU and wall time, peak memory (the resident set's high-water
+mark, reset at each stage's start), fallbacks and inflow ramps, and the final
+figures (issue 32's research resolution: 160 x 80 and 320 x 160):
 
     python benchmarks/optimize.py [--elements-x 180] [--iterations 6] [--backend superlu]
-                                  [--blas-threads 1] [--floor] [--two-way]
+                                  [--blas-threads 1] [--floor] [--large | --schedule]
 """
 
 from __future__ import annotations
@@ -33,7 +49,8 @@ from pathlib import Path
 
 SCENES = Path(__file__).resolve().parents[1] / "examples" / "scenes"
 SCENE = SCENES / "beam_in_channel_optimization.toml"
-TWO_WAY_SCENE = SCENES / "beam_in_channel_optimization_fsi.toml"
+LARGE_SCENE = SCENES / "beam_in_channel_optimization_large.toml"
+ONE_WAY_STAGES = 3                  # the large scene's one-way stages before its first two-way one
 
 
 class FloorCounter:
@@ -50,11 +67,11 @@ class FloorCounter:
         function = raw.__func__ if isinstance(raw, (staticmethod, classmethod)) else raw
 
         def timed(*a, **k):
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             out = function(*a, **k)
             key = label(a, k)
             self.count[key] += 1
-            self.seconds[key] += time.perf_counter() - t0
+            self.seconds[key] += time.process_time() - t0
             return out
         setattr(owner, name, staticmethod(timed) if isinstance(raw, staticmethod) else timed)
 
@@ -67,11 +84,13 @@ class FloorCounter:
         self.wrap(module.Factorization, "solve", lambda a, k: f"triangular solve pair, {len(a[1])} unknowns")
 
     def mark(self):
-        self.marks.append((time.perf_counter(), dict(self.count), dict(self.seconds)))
+        self.marks.append((time.process_time(), dict(self.count), dict(self.seconds)))
 
-    def report(self) -> dict:
-        (t0, c0, s0), (t1, c1, s1) = self.marks[1], self.marks[-1]
-        n = len(self.marks) - 2
+    def report(self, first: int = 1) -> dict:
+        """Per iteration between the marks ``first`` and the last (the iteration before mark
+        ``first``, the first one measured, left out)."""
+        (t0, c0, s0), (t1, c1, s1) = self.marks[first], self.marks[-1]
+        n = len(self.marks) - 1 - first
         rows = {k: {"per_iteration": (c1[k] - c0.get(k, 0)) / n, "seconds": (s1[k] - s0.get(k, 0)) / n}
                 for k in sorted(c1)}
         factorizations = sum(r["seconds"] for k, r in rows.items() if k.startswith("factorization"))
@@ -88,7 +107,10 @@ def main() -> None:
     parser.add_argument("--blas-threads", type=int, default=1, help="solver.blas_threads (0: library default)")
     parser.add_argument("--profile", action="store_true", help="print where the time goes")
     parser.add_argument("--floor", action="store_true", help="count kernel passes, factorizations, solves")
-    parser.add_argument("--two-way", action="store_true", help="the two-way scene, two-way throughout")
+    parser.add_argument("--large", action="store_true",
+                        help="the large-deformation scene: its one-way stages, then --iterations two-way ones")
+    parser.add_argument("--schedule", action="store_true",
+                        help="the large-deformation scene's whole schedule, per stage: time and peak memory")
     parser.add_argument("--output", type=Path, default=Path("results/benchmarks"))
     args = parser.parse_args()
 
@@ -97,12 +119,17 @@ def main() -> None:
     from tofsi.runs.output import write_json
 
     h = 2.0 / args.elements_x
-    sets = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"optimizer.max_iter={args.iterations}",
-            f"design.stage_iterations={args.iterations}", f"solver.linear_solver={args.backend}",
+    sets = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"solver.linear_solver={args.backend}",
             f"solver.blas_threads={args.blas_threads}"]
-    if args.two_way:
-        sets.append('design.coupling=["two-way"]')
-    scene = tofsi.load_scene(TWO_WAY_SCENE if args.two_way else SCENE, sets)
+    if args.schedule:
+        return schedule(tofsi.load_scene(LARGE_SCENE, sets), args, write_json)
+    if args.large:
+        scene = tofsi.load_scene(LARGE_SCENE, sets)
+        scene = tofsi.load_scene(LARGE_SCENE, sets + [f"optimizer.max_iter="
+                                                     f"{ONE_WAY_STAGES * scene.design.stage_iterations + args.iterations}"])
+        return large(scene, args, write_json)
+    sets += [f"optimizer.max_iter={args.iterations}", f"design.stage_iterations={args.iterations}"]
+    scene = tofsi.load_scene(SCENE, sets)
     problem = tofsi.Problem(scene)
     floor = FloorCounter() if args.floor else None
     if floor:
@@ -176,13 +203,100 @@ def main() -> None:
         row["krylov"] = [{"newton_iterations": p[3], "transposed_iterations": p[4],
                           "transposed_over_largest_newton_solve": p[2] / p[0],
                           "transposed_over_mean_newton_solve": p[2] / p[1]} for p in per]
-    row["coupling"] = "two-way" if args.two_way else "one-way"
+    row["coupling"] = "one-way"
     if floor:
         row["floor"] = floor.report()
     print(json.dumps(row, indent=2))
     write_json(args.output / f"optimize_{args.elements_x}_{args.backend}_{row['coupling']}.json", row)
     if profiler:
         pstats.Stats(profiler).sort_stats("tottime").print_stats(int(__import__("os").environ.get("PROFILE_LINES", 15)))
+
+
+def large(scene, args, write_json) -> None:
+    """The large scene's one-way stages and ``args.iterations`` iterations of its first two-way stage."""
+    import statistics
+    import tofsi
+    from tofsi.optimization.optimize import Optimizer
+
+    problem = tofsi.Problem(scene)
+    floor = FloorCounter() if args.floor else None
+    if floor:
+        floor.install(args.backend)
+    rows = []
+    t0 = time.process_time()
+    with tempfile.TemporaryDirectory() as tmp:
+        def on_iteration(it):
+            rows.append((it.stage, it.coupling, time.process_time(), it.load_steps, it.fallbacks))
+            if floor and it.coupling == "two-way":
+                floor.mark()
+        Optimizer(problem, tmp, on_iteration=on_iteration).design_after(ONE_WAY_STAGES + 1)
+    cpu = [b[2] - a[2] for a, b in zip([(0, "", t0)] + rows[:-1], rows)]
+    one_way = [c for c, r in zip(cpu, rows) if r[0] == ONE_WAY_STAGES - 1][1:]
+    two_way = [c for c, r in zip(cpu, rows) if r[1] == "two-way"]
+    first, warm = two_way[0], statistics.median(two_way[1:])
+    row = {"scene": scene.name, "elements": problem.model.mesh.n_elements, "design_variables": problem.n_design,
+           "flow_dofs": problem.model.flow.size, "two_way_iterations": len(two_way),
+           "first_two_way_cpu_s": first, "first_two_way_ramp_steps": rows[len(rows) - len(two_way)][3],
+           "warm_two_way_cpu_s": warm, "warm_two_way_cpu_s_all": two_way[1:],
+           "warm_one_way_cpu_s": statistics.median(one_way), "fallbacks": rows[-1][4],
+           "first_over_warm": first / warm, "two_way_over_one_way": warm / statistics.median(one_way),
+           "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2,
+           "backend": args.backend, "blas_threads": args.blas_threads,
+           "machine": f"{platform.machine()}, Python {platform.python_version()}"}
+    if floor:
+        row["floor"] = floor.report(first=0)            # the warm two-way iterations
+    print(json.dumps(row, indent=2))
+    write_json(args.output / f"optimize_large_{args.elements_x}_{args.backend}.json", row)
+
+
+def high_water_mark_gb(reset: bool = False) -> float:
+    """The process's peak resident set so far [GB] (Linux ``VmHWM``); ``reset`` starts it again
+    from the current resident set (``/proc/self/clear_refs``)."""
+    status = Path("/proc/self/status").read_text()
+    peak = int(next(line for line in status.splitlines() if line.startswith("VmHWM:")).split()[1]) / 1024**2
+    if reset:
+        Path("/proc/self/clear_refs").write_text("5")
+    return peak
+
+
+def schedule(scene, args, write_json) -> None:
+    """The large scene's whole schedule, per stage: iterations, CPU and wall time, peak memory."""
+    import tofsi
+    from tofsi.optimization.optimize import Optimizer
+
+    problem = tofsi.Problem(scene)
+    stages: dict = {}
+    clock = {"cpu": time.process_time(), "wall": time.perf_counter()}
+    high_water_mark_gb(reset=True)
+
+    def on_iteration(it):
+        key = f"{it.stage} ({it.coupling}, beta {it.beta:g})"
+        if key not in stages and stages:
+            last = stages[next(reversed(stages))]
+            last["peak_rss_gb"] = high_water_mark_gb(reset=True)       # (up to this stage's first iteration)
+        row = stages.setdefault(key, {"iterations": 0, "cpu_s": 0.0, "wall_s": 0.0, "ramp_steps": 0})
+        cpu, wall = time.process_time(), time.perf_counter()
+        row["iterations"] += 1
+        row["cpu_s"] += cpu - clock["cpu"]
+        row["wall_s"] += wall - clock["wall"]
+        row["ramp_steps"] += it.load_steps
+        row["fallbacks_after"] = it.fallbacks
+        clock.update(cpu=cpu, wall=wall)
+        print(f"iteration {it.iteration:4d} stage {key}: {it.objective:.5g}, {cpu - clock.get('start', 0):.0f} s CPU",
+              flush=True)
+    clock["start"] = clock["cpu"]
+    with tempfile.TemporaryDirectory() as tmp:
+        result = Optimizer(problem, tmp, on_iteration=on_iteration).run()
+    stages[next(reversed(stages))]["peak_rss_gb"] = high_water_mark_gb()
+    row = {"scene": scene.name, "elements": problem.model.mesh.n_elements, "flow_dofs": problem.model.flow.size,
+           "stages": stages, "total_cpu_s": time.process_time() - clock["start"],
+           "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2,
+           "result": {k: result[k] for k in ("objective", "volume", "iterations", "fallbacks", "stop_reason",
+                                             "max_displacement", "min_skewness") if k in result},
+           "backend": args.backend, "blas_threads": args.blas_threads,
+           "machine": f"{platform.machine()}, Python {platform.python_version()}"}
+    print(json.dumps(row, indent=2))
+    write_json(args.output / f"schedule_large_{args.elements_x}_{args.backend}.json", row)
 
 
 if __name__ == "__main__":

@@ -46,15 +46,17 @@ def element_apply(Ke: np.ndarray, v: np.ndarray, dofs: np.ndarray, transpose: bo
 Progress = Callable[[int, int, dict], None]
 
 
-def transposed_solve(problem: "MotionProblem", Ke: np.ndarray, rhs: np.ndarray, solver, blend=None):
-    """Adjoint of ``[[W K_ff + S_c, W K_fp], [0, I]]`` (element matrices ``Ke`` of ``K``).
+def transposed_solve(problem: "MotionProblem", Ke: np.ndarray, rhs: np.ndarray, solver, blend=None, A=None):
+    """Adjoint of ``[[W K_ff + S_c, W K_fp], [0, I]]`` (element matrices ``Ke`` of ``K``; ``A``, the
+    constrained matrix of the free block, when already assembled).
 
     Returns ``lam`` (zero on fixed dofs) and ``lam_p`` (zero on free dofs):
     ``A_ff^T lam_f = rhs_f``, ``lam_p = rhs_p - (K^T W lam_f)_p``, with the same
     Dirichlet operator as the forward solve, homogeneous.
     """
     bc, dofs = problem.bc, problem.dofs
-    A = bc.matrix(Ke) if blend is None else blend.matrix(bc, Ke, dofs)
+    if A is None:
+        A = bc.matrix(Ke) if blend is None else blend.matrix(bc, Ke, dofs)
     lam = solver.solve_transpose(A, bc.homogenize(rhs))
     lam[bc.fixed] = 0.0
     lam_w = lam if blend is None else blend.weighted(lam)
@@ -191,6 +193,7 @@ class MoveResult:
     blend: object = None                            # the movers.blend.Blend used, if any
     target: np.ndarray | None = None                # (2n,) the prescribed motion as applied
     problem: object = None                          # the MotionProblem moved (set by callers)
+    reverse: object = None                          # a path-dependent move's reverse pass (built by its VJP)
 
 
 def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:

@@ -22,8 +22,12 @@ adjoint of ``x_N``, for ``k = N-1 .. 0``
     sbar_i -= lam_i . (c_i (dx_i - d_i) - (K dx)_i),
     xbar -= d/dx_k [(W lam_f) . K(x_k) dx]        (shape derivative, complex step),
 
-and ``ubar = dbar / N``. One increment on the reference mesh is a linear
-residual mover, differentiated by :class:`movers.base.Mover` itself.
+and ``ubar = dbar / N``. The sweep is linear in ``xbar``; what it needs of
+each increment (its matrices and the complex-step shape derivative of its
+forces) is built once per move (:class:`ReversePass`), so the adjoint of a
+partitioned coupling, which sweeps once per iteration, pays the complex
+steps once. One increment on the reference mesh is a linear residual mover,
+differentiated by :class:`movers.base.Mover` itself.
 """
 
 from __future__ import annotations
@@ -84,29 +88,71 @@ def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
     return x, states
 
 
-def shape_vjp(element_matrices: ElementMatrices, Xe: np.ndarray, factors: np.ndarray,
-              lam_e: np.ndarray, v_e: np.ndarray) -> np.ndarray:
-    """``d/dXe [lam_e . f_e K0_e(Xe) v_e]`` ``(Em, 8)`` by the complex step (exact to round-off)."""
-    return factors[:, None] * corner_derivatives(
-        lambda Xc: np.einsum("ea,eab,eb->e", lam_e, element_matrices(Xc), v_e), Xe)
+class ReversePass:
+    """What the reverse sweep needs of every increment of one move, built once (the sweep is linear
+    in ``xbar``, and an adjoint of a partitioned cycle sweeps it once per iteration).
+
+    Per increment ``k``: the unstiffened element matrices ``K0_k (Em, 8, 8)`` of the mesh ``x_k``,
+    the change ``dx_k``, the constrained system matrix ``A_k`` of its solve, the element Jacobian
+    ``D_k = d(K0_e(Xe) dx_e)/dXe (Em, 8, 8)`` of its forces with respect to the corners (complex
+    step, eight evaluations: what each sweep spent before, now once per move) and, on first use,
+    a factorization of ``A_k`` (``factorize``, the move's solver kind): the move's recycled solver
+    refactorized every second increment of each sweep. Memory: per increment a factorization of
+    the mesh system and two ``(Em, 8, 8)`` arrays (about 10 MB at 80 x 40).
+    """
+
+    def __init__(self, problem: MotionProblem, states: list[np.ndarray], element_matrices: ElementMatrices,
+                 blend=None, factorize=None):
+        dofs, f = problem.dofs, problem.stiffening
+        self.factorize = factorize
+        self.increments = []
+        for k in range(len(states) - 1):
+            x_k, dx = states[k], states[k + 1] - states[k]
+            Xe = problem.points[problem.quads] + x_k.reshape(-1, 2)[problem.quads]
+            K0 = element_matrices(Xe)
+            dx_e = dx[dofs]
+            D = (corner_derivatives(lambda Xc, dx_e=dx_e: np.einsum("eab,eb->ea", element_matrices(Xc), dx_e), Xe)
+                 if k > 0 else None)                # x_0 = 0 does not depend on anything
+            A = system(problem.bc, K0 * f[:, None, None], dofs, blend)
+            self.increments.append((K0, dx, D, A))
+        self.solvers: list = [None] * len(self.increments)
+
+    def solve_transpose(self, k: int, A, b: np.ndarray) -> np.ndarray:
+        """``A_k^-T b`` with increment ``k``'s own factorization (made on first use)."""
+        if self.solvers[k] is None:
+            self.solvers[k] = self.factorize(A)
+        return self.solvers[k].solve_transpose(b)
 
 
-def increments_vjp(problem: MotionProblem, states: list[np.ndarray], target: np.ndarray,
-                   element_matrices: ElementMatrices, solver, xbar: np.ndarray, blend=None):
-    """Reverse sweep: ``(target_bar (2n,), stiffening_bar (Em,), blend_bar (n,))``."""
+class _Increment:
+    """One increment's factorization in the interface of a recycling solver (``solve_transpose(A, b)``)."""
+
+    def __init__(self, reverse: ReversePass, k: int):
+        self.reverse, self.k = reverse, k
+
+    def solve_transpose(self, A, b):
+        return self.reverse.solve_transpose(self.k, A, b)
+
+
+def increments_vjp(problem: MotionProblem, result, element_matrices: ElementMatrices, xbar: np.ndarray):
+    """Reverse sweep of the move ``result`` (its trajectory, target, solver and blend):
+    ``(target_bar (2n,), stiffening_bar (Em,), blend_bar (n,))``. Its :class:`ReversePass` is
+    built on the first call and kept on ``result.reverse`` for the later ones."""
+    if result.reverse is None:
+        result.reverse = ReversePass(problem, result.trajectory, element_matrices, result.blend,
+                                     result.solver.factorize)
+    blend = result.blend
     dofs, f = problem.dofs, problem.stiffening
-    n = len(states) - 1
-    step = target / n
+    n = len(result.reverse.increments)
+    step = result.target / n
     xbar = np.array(xbar, dtype=float).reshape(-1)
     step_bar = np.zeros_like(xbar)
     f_bar = np.zeros(len(problem.quads))
     s_bar = np.zeros(problem.n_nodes)
     for k in range(n - 1, -1, -1):
-        x_k, dx = states[k], states[k + 1] - states[k]
-        Xe = problem.points[problem.quads] + x_k.reshape(-1, 2)[problem.quads]
-        K0 = element_matrices(Xe)
+        K0, dx, D, A = result.reverse.increments[k]
         Ke = K0 * f[:, None, None]
-        lam, lam_p = transposed_solve(problem, Ke, xbar, solver, blend)
+        lam, lam_p = transposed_solve(problem, Ke, xbar, _Increment(result.reverse, k), blend, A)
         step_bar += lam_p
         lam_w = lam if blend is None else blend.weighted(lam)
         if blend is not None:                       # the increment's D = W K dx + S_c (dx - d)
@@ -115,6 +161,6 @@ def increments_vjp(problem: MotionProblem, states: list[np.ndarray], target: np.
             s_bar -= s_part
         lam_e, dx_e = lam_w[dofs], dx[dofs]
         f_bar -= np.einsum("ea,eab,eb->e", lam_e, K0, dx_e)
-        if k > 0:                                   # x_0 = 0 does not depend on anything
-            xbar = xbar - assemble_vector(dofs, shape_vjp(element_matrices, Xe, f, lam_e, dx_e), xbar.size)
+        if D is not None:                           # d/dx_k [(W lam) . f K0(x_k) dx]
+            xbar = xbar - assemble_vector(dofs, f[:, None] * np.einsum("eaj,ea->ej", D, lam_e), xbar.size)
     return step_bar / n, f_bar, s_bar

@@ -73,6 +73,5 @@ class LinearElasticMover(Mover):
         """Reverse sweep through the increments (with one: the adjoint of ``K x = 0, x_p = u_p``)."""
         if not self.path_dependent:
             return super().vjp(problem, result, xbar)
-        t_bar, f_bar, s_bar = increments_vjp(problem, result.trajectory, result.target,
-                                             self.element_matrices(), result.solver, xbar, result.blend)
+        t_bar, f_bar, s_bar = increments_vjp(problem, result, self.element_matrices(), xbar)
         return t_bar.reshape(-1, 2), f_bar, s_bar

@@ -114,7 +114,6 @@ class SpringMover(Mover):
 
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
         """Reverse sweep through the increments (the diagonal choice is held fixed)."""
-        t_bar, f_bar, s_bar = increments_vjp(problem, result.trajectory, result.target,
-                                             self.element_matrices(result.cell_data["diagonal"]),
-                                             result.solver, xbar, result.blend)
+        t_bar, f_bar, s_bar = increments_vjp(problem, result,
+                                             self.element_matrices(result.cell_data["diagonal"]), xbar)
         return t_bar.reshape(-1, 2), f_bar, s_bar

@@ -20,8 +20,9 @@ from tofsi.optimization.optimize import Optimizer
 
 from conftest import load, scene_path
 
-WALL = ["geometry.design=[]", "design.coupling=[]", "structure.youngs_modulus=3e4", "mesh.h_min=0.1",
-        "mesh.h_max=0.1"]           # the headline's wall alone, ten times stiffer: it bends ~0.6 m
+WALL = ["geometry.design=[]", "design.coupling=[]", "structure.youngs_modulus=2e4", "mesh.h_min=0.1",
+        "mesh.h_max=0.1", "coupled.max_iter=8"]   # the headline's wall alone, 6.7 times stiffer: it bends
+                                                   # ~0.85 m; the full-load Newton needs 15 steps, 8 allowed
 
 
 def test_the_inflow_ramp_carries_a_solve_the_full_load_cannot_reach():

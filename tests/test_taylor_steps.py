@@ -161,5 +161,8 @@ def test_check_gradients_passes_the_shape_blocks_at_the_issue_state(issue_state)
     assert all(r["passed"] for r in rows.values()), rows
     for name in ("F_x", "S_x"):
         r = rows[name]
-        assert r["result"] == "ok" and abs(r["min_rate"] - 2.0) < 0.05, r
+        assert r["result"] in ("ok", "inconclusive") and abs(r["min_rate"] - 2.0) < 0.05, r
+        if r["result"] == "inconclusive":   # the central differences at their round-off (measured 2.2e-6
+            assert r["cd_error"] < 3 * r["cd_round_off"], r     # against 1.1e-5 for F_x since the mesh
+                                                                 # follows the structure); Taylor rate 2
         assert min(r["remainders"][:len(r["rates"]) + 1]) >= 100 * r["round_off_floor"]

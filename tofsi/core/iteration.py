@@ -1,8 +1,8 @@
 """Pieces every nonlinear iteration of the toolkit shares: the Newton forcing term,
-a backtracking line search and Aitken's relaxation.
+a backtracking line search and the interface quasi-Newton update of a fixed point.
 
-Each is a pure function of its arguments, so an iteration that uses them is
-reproducible bit for bit.
+Each depends only on what it is given (the quasi-Newton update on the iterates so far), so
+an iteration that uses them is reproducible bit for bit.
 """
 
 from __future__ import annotations
@@ -44,13 +44,33 @@ def backtracking(merit0: float, trial: Callable[[float], tuple[float, object]],
     return None
 
 
-def aitken(omega: float, r: np.ndarray, r_previous: np.ndarray | None) -> float:
-    """Aitken's dynamic relaxation factor for a fixed-point iteration with residuals ``r``.
+class InterfaceQuasiNewton:
+    """IQN-ILS, the interface quasi-Newton method with a least-squares Jacobian model (Degroote,
+    Bathe & Vierendeels 2009), for a fixed point ``x = H(x)`` (a partitioned sweep).
 
-    ``omega_k = -omega_(k-1) r_(k-1) . (r_k - r_(k-1)) / |r_k - r_(k-1)|^2``;
-    the first factor is kept while there is no previous residual.
+    From the iterates' values ``h_k = H(x_k)`` and residuals ``r_k = h_k - x_k`` it keeps the
+    differences ``V = [r_(i+1) - r_i]`` and ``W = [h_(i+1) - h_i]`` (the last ``columns``), solves
+    ``min |V c + r_k|`` and takes ``x_(k+1) = h_k + W c``: a multi-secant model of the inverse of
+    ``I - H'`` on the differences seen so far, exact on them, which removes the modes a relaxed
+    fixed-point iteration amplifies (a sweep that diverges on one mode, as a soft structure whose
+    mesh follows it does, converges). The first step is relaxed by ``omega``. Columns that the
+    least squares cannot tell apart (singular values below ``rcond`` of the largest) are dropped.
     """
-    if r_previous is None:
-        return omega
-    dr = r - r_previous
-    return -omega * float(r_previous @ dr) / max(float(dr @ dr), 1e-300)
+
+    def __init__(self, omega: float, columns: int = 30, rcond: float = 1e-10):
+        self.omega, self.columns, self.rcond = omega, columns, rcond
+        self.h, self.r = None, None
+        self.V, self.W = [], []
+
+    def next(self, x: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """The next iterate from the current one ``x`` and its value ``h = H(x)``."""
+        r = h - x
+        if self.h is not None:
+            self.V.append(r - self.r)
+            self.W.append(h - self.h)
+            del self.V[:-self.columns], self.W[:-self.columns]
+        self.h, self.r = h, r
+        if not self.V:
+            return x + self.omega * r
+        c = np.linalg.lstsq(np.column_stack(self.V), -r, rcond=self.rcond)[0]
+        return h + np.column_stack(self.W) @ c

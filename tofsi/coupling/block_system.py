@@ -9,11 +9,12 @@ components, in topological order, are solved one after the other:
   solved either
 
   - partitioned: Gauss-Seidel sweeps over its blocks in the system's order,
-    the ``relax`` field relaxed with Aitken's factor, until its relative
+    the ``relax`` field's next value from the interface quasi-Newton method
+    (:class:`~tofsi.core.iteration.InterfaceQuasiNewton`), until its relative
     change ``|z~ - z| / |z~|`` is at most ``tol``; the blocks before it in
     the sweep are then solved once more, so every field is consistent; or
-  - monolithic: Newton on the assembled block Jacobian
-    ``[[dR_a/dz_b]]`` (every block of the cycle needs a residual form), with
+  - monolithic: Newton on the block Jacobian ``[[dR_a/dz_b]]`` (every block of
+    the cycle needs a residual form; kept as its blocks, :class:`~tofsi.linalg.BlockMatrix`), with
     a backtracking line search on the largest block residual scaled by the
     block's force scale. Each Newton step is solved inexactly, to the
     Eisenstat-Walker relative tolerance (:func:`tofsi.core.iteration.forcing_term`;
@@ -24,8 +25,11 @@ components, in topological order, are solved one after the other:
     for the later iterates and the adjoint. With ``quasi_newton`` the couplings a block marks as
     slow to build and slow to change (``FieldBlock.slow_couplings``: the shape
     derivatives with respect to the mesh motion) are built at the first
-    iterate and kept for the rest of the solve; the converged state's exact
-    couplings are built once, for the adjoint.
+    iterate and kept while the Newton contracts (a step that leaves more than
+    ``SLOW_CONTRACTION`` of the residual rebuilds them at its iterate); the
+    converged state's exact couplings are built once, for the adjoint. A Newton
+    whose residual falls by less than ``STALL_FACTOR`` in ``STALL_ITERATIONS``
+    steps stops early (a load step's cutback is cheaper than its crawl).
 
 Both report their history and raise :class:`~tofsi.core.errors.NumericalError`
 when they do not converge. The system also gives the split of a stacked
@@ -44,12 +48,15 @@ import scipy.sparse as sp
 
 from tofsi.core.blocks import Continuation, FieldBlock, Linearization, State
 from tofsi.core.errors import InputError, NumericalError
-from tofsi.core.iteration import aitken, backtracking, forcing_term
-from tofsi.linalg import BlockGaussSeidel, LinearAlgebra, RecyclingSolver, nested_dissection
+from tofsi.core.iteration import InterfaceQuasiNewton, backtracking, forcing_term
+from tofsi.linalg import BlockGaussSeidel, BlockMatrix, LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import canonical_csr, resolve
 
 log = logging.getLogger(__name__)
 EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exactly" (after a failed line search)
+SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
+STALL_ITERATIONS = 16    # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
+STALL_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
@@ -74,9 +81,9 @@ class CoupledLinearization:
         self.system, self.names, self.lins, self.solver = system, names, lins, solver
         self._J = None
 
-    def matrix(self) -> sp.csr_matrix:
+    def matrix(self) -> BlockMatrix:
         if self._J is None:
-            self._J = self.system.jacobian(self.lins, self.names)
+            self._J = self.system.block_jacobian(self.lins, self.names)
         return self._J
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
@@ -187,6 +194,20 @@ class BlockSystem:
                                    for B, b in zip(blocks, names, strict=True)], format="csr"))
         return sp.vstack(rows, format="csr")                    # no COO round trip, unlike bmat
 
+    def block_jacobian(self, lins: dict[str, Linearization], names, kept: dict | None = None) -> BlockMatrix:
+        """The block Jacobian of :meth:`jacobian` kept as its blocks (products, a block
+        preconditioner's diagonal blocks), assembled by nobody unless a whole-matrix LU asks."""
+        kept = kept or {}
+        blocks = {}
+        for i, a in enumerate(names):
+            lin = lins[a]
+            for j, b in enumerate(names):
+                B = (lin.matrix() if b == a else kept[(a, b)] if (a, b) in kept else
+                     (lin.coupling(b) if b in self.by_name[a].inputs else None))
+                if B is not None:
+                    blocks[(i, j)] = B if sp.isspmatrix_csr(B) else sp.csr_matrix(B)
+        return BlockMatrix(blocks, [self.by_name[n].size for n in names])
+
     def ordering(self, names) -> np.ndarray | None:
         """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid);
         computed once per tuple of names (the blocks' grids never change)."""
@@ -213,10 +234,9 @@ class BlockSystem:
         direct = self.linear_algebra.direct
         if kind == "direct":
             perm = self.ordering(comp)
-            return RecyclingSolver(lambda A: direct(A, perm=perm))
-        sizes = [self.by_name[n].size for n in comp]
+            return RecyclingSolver(lambda A: direct(A.tocsr() if isinstance(A, BlockMatrix) else A, perm=perm))
         orderings = [self.ordering((n,)) for n in comp]
-        return RecyclingSolver(lambda A: BlockGaussSeidel(A, sizes, orderings, direct=direct))
+        return RecyclingSolver(lambda A: BlockGaussSeidel(A, orderings=orderings, direct=direct))
 
     # ---- forward solve ------------------------------------------------------------------
     def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,
@@ -265,21 +285,18 @@ class BlockSystem:
         for name in comp:
             if fields[name] is None:
                 fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
-        omega, r_previous, history = s.relaxation, None, []
+        accelerator, history = InterfaceQuasiNewton(s.relaxation), []
         at = comp.index(relax)
         for k in range(s.max_iter):
             for name in comp[:at]:
                 fields[name] = self._solve_block(name, fields, state, progress,
                                                  state.linearizations.get(name))
             new = self._solve_block(relax, fields, state, progress, state.linearizations.get(relax))
-            r = new - fields[relax]
-            omega = aitken(omega, r, r_previous)
-            change = float(np.linalg.norm(r) / max(np.linalg.norm(new), 1e-300))
-            history.append({"iteration": k, "relative_change": change, "omega": omega})
+            change = float(np.linalg.norm(new - fields[relax]) / max(np.linalg.norm(new), 1e-300))
+            history.append({"iteration": k, "relative_change": change})
             log.info("partitioned coupling %d: relative change of %s %.3e", k, relax, change)
             converged = change <= s.tol
-            fields[relax] = new if converged else fields[relax] + omega * r
-            r_previous = r
+            fields[relax] = new if converged else accelerator.next(fields[relax], new)
             for name in comp[at + 1:]:
                 fields[name] = self._solve_block(name, fields, state, progress,
                                                  state.linearizations.get(name))
@@ -326,11 +343,22 @@ class BlockSystem:
                 return
             if it == s.max_iter:
                 break
-            if kept is None and s.quasi_newton:         # the slow couplings of the first iterate
+            merits = [max(h[n] for n in comp) for h in history]
+            if it >= STALL_ITERATIONS and merits[-1] * STALL_FACTOR > merits[-1 - STALL_ITERATIONS]:
+                raise NumericalError(
+                    f"monolithic coupling stagnated: the largest scaled residual fell from "
+                    f"{merits[-1 - STALL_ITERATIONS]:.3g} to {merits[-1]:.3g} in {STALL_ITERATIONS} Newton steps",
+                    {"history": history})
+            if kept and it > 0 and merits[-1] > SLOW_CONTRACTION * merits[-2]:   # kept ones gone stale
+                log.info("monolithic Newton %d: the residual contracted by only %.2f; the slow couplings "
+                         "of this iterate from here on", it, merits[-1] / merits[-2])
+                history[-1]["couplings_rebuilt"] = True
+                kept = None
+            if kept is None and s.quasi_newton:         # the slow couplings of the first iterate (or a later)
                 kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
                         for o in getattr(b, "slow_couplings", ()) if o in comp}
             b = -np.concatenate(R)
-            eta = forcing_term([max(h[n] for n in comp) for h in history], s.tol)    # inexact Newton
+            eta = forcing_term(merits, s.tol)           # inexact Newton
             found, solver = self._newton_step(comp, lins, kept, b, eta, solver, fields, merit, max(norms),
                                               history)
             if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
@@ -344,6 +372,8 @@ class BlockSystem:
                 raise NumericalError("monolithic coupling: line search found no decrease",
                                      {"history": history})
             values, accepted = found[1]
+            if found[0] < 1.0:
+                log.info("monolithic Newton %d: step length %g", it, found[0])
             fields.update(values)
         raise NumericalError(f"monolithic coupling did not converge in {s.max_iter} Newton iterations",
                              {"history": history})
@@ -352,7 +382,7 @@ class BlockSystem:
         """One Newton step of the monolithic solve: the block Jacobian (with the ``kept`` couplings)
         solved to ``rtol``, then the backtracking line search on the merit. Returns ``(the accepted
         fields or None, the solver)`` -- the whole Jacobian's LU when GMRES fails."""
-        J = self.jacobian(lins, comp, kept)
+        J = self.block_jacobian(lins, comp, kept)
         try:
             step = solver.solve(J, b, rtol=rtol)
         except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
@@ -367,4 +397,7 @@ class BlockSystem:
             values.update({n: fields[n] + alpha * dz[n] for n in comp})
             value, lins_at = merit(values, linearize=(alpha == 1.0))
             return value, (values, lins_at)
-        return backtracking(norm, trial), solver
+        found = backtracking(norm, trial)
+        if found is not None:
+            history[-1]["step_length"] = found[0]
+        return found, solver

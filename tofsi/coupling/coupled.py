@@ -6,7 +6,7 @@ a scene's effects decide which are active -- no fluid -> no ``w``; no structure
 reference mesh and the mover is never called). Their blocks go into a
 :class:`~tofsi.coupling.block_system.BlockSystem`, which solves them in dependency
 order -- one-way: the flow, then the structure; two-way: the cycle flow ->
-structure -> mesh -> flow, partitioned (Aitken-relaxed on ``u``) or by
+structure -> mesh -> flow, partitioned (sweeps, ``u``'s next value by IQN-ILS) or by
 monolithic Newton on
 
       | S_u  S_x  S_w |
@@ -140,7 +140,8 @@ class CoupledModel:
               stage: Stage | None = None) -> State:
         """The coupled state for densities ``rho`` (E,) at continuation ``stage`` (default: the
         scene's first); ``guess`` warm-starts the solvers. When a two-way solve fails at the
-        full inflow, the inflow is ramped from rest (``coupled.load_ramp``,
+        full inflow from it, the solve continues from the guess's densities (a two-way state of
+        another design) or ramps the inflow from rest (``coupled.load_ramp``,
         :mod:`tofsi.coupling.load_ramp`; one-way, the flow continues in its Reynolds number itself)."""
         t0 = time.perf_counter()
         if self.flow is None and self.structure is None:
@@ -150,10 +151,11 @@ class CoupledModel:
         with self.linear_algebra.blas():
             system = self.system_for(stage)
 
-            def at(p: Continuation, start: State | None) -> State:
-                return self.unfolded(system.solve(rho, p, start, progress))
+            def at(p: Continuation, start: State | None, densities=rho) -> State:
+                return self.unfolded(system.solve(densities, p, start, progress))
             try:
-                state = (ramped(at, stage.params, guess, c.min_load_step) if c.load_ramp and system.cycles
+                state = (ramped(at, stage.params, guess, c.min_load_step, rho, system.names)
+                         if c.load_ramp and system.cycles
                          else at(stage.params, guess))     # one-way: the flow's Reynolds continuation instead
             except NumericalError as err:
                 self._add_quality(err)

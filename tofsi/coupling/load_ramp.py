@@ -1,22 +1,37 @@
-"""Load continuation: a coupled solve carried to large motion by ramping the inflow.
+"""Continuation: a coupled solve carried to a state its warm start cannot reach directly.
 
 A soft structure under the full flow may move so far that the coupled Newton
-from the previous design's state (or from rest) does not converge, or the
-mesh mover meets a predictor that folds an element. The physical path goes
-through the intermediate loads: with the flow's prescribed boundary
-velocities scaled by ``lambda`` (``Continuation.load``; the structure's load
-and the mesh motion follow), the solve goes
+from its warm start does not converge, or the mesh mover meets a predictor
+that folds an element. The solve always begins at the problem itself (the
+full inflow, from the warm start: the previous design's state, or the state
+the previous one-way stage left), and continues along a path only when that
+fails, in one of two parameters:
 
-    lambda_0 = 0 (rest) -> lambda_1 -> ... -> lambda_K = 1,
+* **the densities**, when the warm start is a converged state of the coupled
+  problem at other densities (the previous design of an optimization, also
+  across a stage whose projection is sharper): the densities go
+  ``rho_t = (1 - t) rho_guess + t rho`` from ``t = 0`` (the warm start's own,
+  where it is a solution) to ``t = 1``. Each step is a design change like an
+  optimizer's, solved from the last step's state. A design this path cannot
+  reach from a solved neighbour fails after a few short steps (an optimizer's
+  trial design then falls back, a stage's first design is bridged:
+  :mod:`tofsi.optimization.optimize`): an inflow ramp from rest, which throws
+  the neighbour's state away, failed on every such design of the large scene
+  as well, after 24 s more (80 x 40);
+* **the inflow**, otherwise (a warm start of the one-way problem): the flow's
+  prescribed boundary velocities scaled by ``lambda`` (``Continuation.load``;
+  the structure's load and the mesh motion follow), from rest (the state at
+  ``lambda = 0``) to the full inflow, the first step to half of it, since a
+  state the full inflow's Newton cannot reach from its warm start is at least
+  that far from it.
 
-each step warm-started from the last converged one, with adaptive steps:
-a converged step grows the next by ``GROWTH``, a failed one is cut back to
-half (and retried from the last converged state) down to
-``coupled.min_load_step``. The ramp starts only when the direct solve at the
-full load fails, so a solve that converges directly is unchanged. Its steps
-and cutbacks go to the state's report (``load_ramp``) and the log (``-v``);
-the converged state is the full-load one, at the caller's continuation
-record, so its adjoint and every kept value are those of the problem.
+Each step starts from the last converged one; a converged step grows the
+next by ``GROWTH``, a failed one is cut back to half, down to
+``coupled.min_load_step`` (the inflow) or ``MIN_DENSITY_STEP`` (the
+densities). Steps and cutbacks go to the state's report (``load_ramp`` or
+``density_ramp``) and the log (``-v``); the converged state is the problem's
+own (the caller's densities, at the full load and the caller's continuation
+record), so its adjoint and every kept value are those of the problem.
 """
 
 from __future__ import annotations
@@ -25,46 +40,89 @@ import dataclasses
 import logging
 from typing import Callable
 
+import numpy as np
+
 from tofsi.core.blocks import Continuation, State
 from tofsi.core.errors import NumericalError
 
 log = logging.getLogger(__name__)
-FIRST_STEP = 0.25          # the first ramp step, from rest
-GROWTH = 1.5               # a converged step's successor is this much longer (at most to the full load)
+FIRST_STEP = 0.5           # the inflow ramp's first step, from rest
+FIRST_DENSITY_STEP = 0.5   # the densities' first step, from the warm start's
+MIN_DENSITY_STEP = 0.25    # the densities' smallest step: a trial design the path cannot reach fails after two tries
+GROWTH = 1.5               # a converged step's successor is this much longer (at most to the end)
+
+Solve = Callable[[Continuation, "State | None", np.ndarray], State]
 
 
-def ramped(solve: Callable[[Continuation, State | None], State], params: Continuation, guess: State | None,
-           min_step: float) -> State:
-    """``solve(params, guess)`` at the full load (``params.load``), or, when that fails, along a
-    ramp of the load from rest (see the module docstring). Raises :class:`NumericalError` naming the last
-    converged load when a step below ``min_step`` still fails."""
+def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: float, rho: np.ndarray,
+           fields: tuple[str, ...] = ()) -> State:
+    """``solve(params, guess, rho)`` at the full load, or, when that fails, along a path in the
+    densities (a ``guess`` holding every field of ``fields`` at other densities) or else in the
+    inflow (see the module docstring). Raises :class:`NumericalError` naming how far the path got
+    when its step below the smallest (``min_step`` for the inflow) still fails."""
     try:
-        return solve(params, guess)
+        return solve(params, guess, rho)
     except NumericalError as direct:
         first_failure = direct
+    if _solved_elsewhere(guess, fields, rho):
+        log.info("coupled solve failed from the previous design's state (%s); continuing in the densities "
+                 "from that design's", first_failure)
+        rho0 = np.asarray(guess.rho, dtype=float)
+        state, report = _continue(lambda t, start: solve(params, start, (1.0 - t) * rho0 + t * rho),
+                                  guess, FIRST_DENSITY_STEP, MIN_DENSITY_STEP,
+                                  "continuation in the densities from the previous design's")
+        state.reports["density_ramp"] = {**report, "full_load_failure": str(first_failure)}
+        return state
     log.info("coupled solve failed at the full load (%s); ramping the inflow from rest", first_failure)
+    try:
+        state, report = _continue(lambda t, start: solve(dataclasses.replace(params, load=params.load * t),
+                                                          start, rho),
+                                  None, FIRST_STEP, min_step, "inflow ramp")
+    except NumericalError as err:
+        failure = NumericalError(
+            f"load continuation stopped at {err.diagnostic['reached']:.4g} of the inflow (a step of "
+            f"{err.diagnostic['step']:.3g} to {err.diagnostic['failed']:.4g} failed: {err.__cause__})",
+            {**err.diagnostic, "load": err.diagnostic["reached"], "failed_load": err.diagnostic["failed"],
+             "load_steps": err.diagnostic["steps"], "full_load_failure": str(first_failure)},
+            state=err.state)
+        failure.accepted = err.accepted
+        raise failure from err.__cause__
+    state.reports["load_ramp"] = {**report, "full_load_failure": str(first_failure)}
+    return state
+
+
+def _solved_elsewhere(guess: State | None, fields, rho) -> bool:
+    """``guess`` is a converged state of every field of the coupled problem at other densities."""
+    return (guess is not None and guess.rho is not None and bool(fields)
+            and all(guess.fields.get(name) is not None for name in fields)
+            and np.shape(guess.rho) == np.shape(rho) and not np.array_equal(guess.rho, rho))
+
+
+def _continue(step_solve, start: State | None, first: float, min_step: float, what: str):
+    """Solve ``step_solve(t, start)`` for ``t`` from 0 (``start``, which may be None: rest) to 1 in
+    adaptive steps; ``(state at t = 1, {"steps", "cutbacks"})`` or a NumericalError whose diagnostic
+    says how far it got (``reached``, ``failed``, ``step``, ``steps``, ``cutbacks``) and whose cause
+    is the failed step's error."""
     steps, cutbacks = [], 0
-    load, step, state = 0.0, FIRST_STEP, None               # fractions of the caller's load
-    while load < 1.0:
-        trial = min(1.0, load + step)
+    t, step, state = 0.0, first, start
+    while t < 1.0:
+        trial = min(1.0, t + step)
         try:
-            state = solve(dataclasses.replace(params, load=params.load * trial), state)
+            state = step_solve(trial, state)
         except NumericalError as err:
             cutbacks += 1
             step *= 0.5
-            log.info("load step to %.4g failed (%s); cut back to %.4g", trial, err, step)
+            log.info("%s: the step to %.4g of the way failed (%s); cut back to %.4g", what, trial, err, step)
             if step < min_step:
-                failure = NumericalError(
-                    f"load continuation stopped at {load:.4g} of the inflow (a step of {2 * step:.3g} to "
-                    f"{trial:.4g} failed: {err})",
-                    {**err.diagnostic, "load": load, "failed_load": trial, "load_steps": steps,
-                     "cutbacks": cutbacks, "full_load_failure": str(first_failure)}, state=err.state)
+                failure = NumericalError(f"{what} stopped at {t:.4g} of the way (a step to {trial:.4g} failed: "
+                                         f"{err})", {**err.diagnostic, "reached": t, "failed": trial,
+                                                     "step": 2 * step, "steps": steps, "cutbacks": cutbacks},
+                                         state=err.state)
                 failure.accepted = state            # the last converged state (None: none), for its quality
                 raise failure from err
             continue
-        load = trial
-        steps.append(load)
-        log.info("load step %d: %.4g of the inflow converged", len(steps), load)
+        t = trial
+        steps.append(t)
+        log.info("%s: step %d, %.4g of the way, converged", what, len(steps), t)
         step = min(GROWTH * step, 1.0)
-    state.reports["load_ramp"] = {"steps": steps, "cutbacks": cutbacks, "full_load_failure": str(first_failure)}
-    return state
+    return state, {"steps": steps, "cutbacks": cutbacks}

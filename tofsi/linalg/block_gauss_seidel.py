@@ -33,9 +33,10 @@ import logging
 from itertools import pairwise
 
 import numpy as np
-import scipy.sparse as sp
 
 from tofsi.core.errors import NumericalError
+from tofsi.linalg.backends import canonical_csr
+from tofsi.linalg.block_matrix import BlockMatrix
 from tofsi.linalg.direct import DirectSolver
 from tofsi.linalg.recycling import GMRES_RESTART, flexible_gmres
 
@@ -45,8 +46,9 @@ log = logging.getLogger(__name__)
 class BlockGaussSeidel:
     """Block lower-triangular preconditioner of a field-block matrix, and GMRES with it.
 
-    A : the square matrix, unknowns stacked field after field
-    sizes : the fields' sizes, in the order of ``A``'s unknowns (and of the sweep)
+    A : the square matrix, a :class:`~tofsi.linalg.BlockMatrix` of the fields' blocks, or an
+        assembled sparse matrix whose unknowns are stacked field after field (then ``sizes``)
+    sizes : the fields' sizes, in the order of ``A``'s unknowns (only for an assembled ``A``)
     orderings : per field, a fill-reducing permutation of its unknowns (or None)
     direct : ``(matrix, perm) -> DirectSolver`` on the model's backend (default: the process's)
     """
@@ -55,21 +57,24 @@ class BlockGaussSeidel:
     symmetric = False
     setup_iterations = 10      # factorizing the diagonal blocks costs about 10 GMRES iterations
 
-    def __init__(self, A: sp.spmatrix, sizes, orderings=None, tol: float = 1e-10, max_iter: int = 200,
+    def __init__(self, A, sizes=None, orderings=None, tol: float = 1e-10, max_iter: int = 200,
                  direct=None):
-        A = sp.csr_matrix(A)
+        if not isinstance(A, BlockMatrix):
+            if sizes is None:
+                raise ValueError("an assembled matrix needs the block sizes")
+            A = BlockMatrix.from_sparse(A, sizes)
+        elif sizes is not None and tuple(sizes) != A.sizes:
+            raise ValueError(f"block sizes {list(sizes)} are not the matrix's {list(A.sizes)}")
         self.direct = direct or (lambda M, perm=None: DirectSolver(M, perm=perm))
         self.A, self.tol, self.max_iter, self.shape = A, tol, max_iter, A.shape
-        self.starts = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-        if self.starts[-1] != A.shape[0] or A.shape[0] != A.shape[1]:
-            raise ValueError(f"block sizes {list(sizes)} do not make up the {A.shape} matrix")
-        orderings = orderings or [None] * len(sizes)
-        self.diagonal, self.lower, self.lower_t = [], [], []
-        for i, (a, b) in enumerate(pairwise(self.starts)):
-            rows = A[a:b]
-            self.diagonal.append(self.direct(rows[:, a:b], perm=orderings[i]))
-            self.lower.append(rows[:, :a].tocsr())                     # A_ij, j < i
-            self.lower_t.append(A[b:, a:b].T.tocsr())                  # (A_ji)^T, j > i: M^T's upper part
+        self.starts = A.starts
+        n = len(A.sizes)
+        orderings = orderings or [None] * n
+        self.diagonal, self.lower, self.upper_t = [], [], []
+        for i in range(n):
+            self.diagonal.append(self.direct(canonical_csr(A.blocks[(i, i)]), perm=orderings[i]))
+            self.lower.append(A.sub((i,), range(i)))                   # A_ij, j < i
+            self.upper_t.append(A.sub(range(i + 1, n), (i,)).T)        # (A_ji)^T, j > i: M^T's upper part
         self.memory_bytes = sum(d.memory_bytes for d in self.diagonal)
         self._solve = [d.preconditioner(False) for d in self.diagonal]      # triangular solves only
         self._solve_t = [d.preconditioner(True) for d in self.diagonal]
@@ -78,17 +83,16 @@ class BlockGaussSeidel:
         """``M^{-1} r``: forward block substitution."""
         z = np.empty_like(r)
         for i, (a, b) in enumerate(pairwise(self.starts)):
-            rhs = r[a:b] - self.lower[i] @ z[:a] if a else r[a:b]
+            rhs = r[a:b] - self.lower[i] @ z[:a] if self.lower[i] else r[a:b]
             z[a:b] = self._solve[i](rhs)
         return z
 
     def _sweep_transpose(self, r: np.ndarray) -> np.ndarray:
         """``M^{-T} r``: backward block substitution with the transposed blocks."""
         z = np.empty_like(r)
-        n = self.starts[-1]
         for i in reversed(range(len(self._solve))):
             a, b = self.starts[i], self.starts[i + 1]
-            rhs = r[a:b] - self.lower_t[i] @ z[b:] if b < n else r[a:b]
+            rhs = r[a:b] - self.upper_t[i] @ z[b:] if self.upper_t[i] else r[a:b]
             z[a:b] = self._solve_t[i](rhs)
         return z
 
@@ -113,12 +117,12 @@ class BlockGaussSeidel:
             return self._gmres(self.A, b, self._sweep)
         except NumericalError as err:
             log.warning("%s; factorizing the whole matrix instead", err)
-            return self.direct(self.A).solve(b)
+            return self.direct(self.A.tocsr()).solve(b)
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
         """``A^-T b``, as :meth:`solve`."""
         try:
-            return self._gmres(self.A.T.tocsr(), b, self._sweep_transpose)
+            return self._gmres(self.A.T, b, self._sweep_transpose)
         except NumericalError as err:
             log.warning("%s; factorizing the whole matrix instead", err)
-            return self.direct(self.A).solve_transpose(b)
+            return self.direct(self.A.tocsr()).solve_transpose(b)

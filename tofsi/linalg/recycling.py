@@ -66,6 +66,7 @@ class RecyclingSolver:
         self.solver = None
         self.stale = False
         self.fresh_cost = None             # iterations per decade of a fresh hierarchy
+        self.last_cost = None              # iterations per decade of the latest solve
         self.factorizations = 0
         self.krylov_iterations = 0
 
@@ -82,7 +83,7 @@ class RecyclingSolver:
         log.info("new factorization (or hierarchy) of %d unknowns", A.shape[0])
         self.solver = self.factorize(A)
         self.stale = False
-        self.fresh_cost = None
+        self.fresh_cost = self.last_cost = None
         self.factorizations += 1
 
     def _usable(self, A) -> bool:
@@ -129,6 +130,7 @@ class RecyclingSolver:
             decades = max(math.log10(r0 / max(residual, 1e-300)), 0.1)
             if self.fresh_cost is None:
                 self.fresh_cost = its / decades
+            self.last_cost = its / decades
             self.stale = its > self.fresh_cost * decades + self.solver.setup_iterations
         log.info("%s: %d iterations, residual %.2e relative to |b|",
                  "GMRES" if self.solver.exact or not self.solver.symmetric else "CG", its, residual / bnorm)
@@ -154,10 +156,23 @@ class RecyclingSolver:
                                  {"size": A.shape[0], "rtol": rtol or self.rtol})
         return x
 
+    def _dearer_than_fresh(self, decades: float) -> bool:
+        """An iterative solver whose latest solve's cost per decade, over ``decades``, would
+        exceed a fresh one's and its setup (a Newton that moved far since it was built leaves
+        it so for the adjoint's long solve)."""
+        if self.solver is None or self.solver.exact or self.fresh_cost is None or self.last_cost is None:
+            return False
+        return (self.last_cost - self.fresh_cost) * decades > self.solver.setup_iterations
+
     def solve_transpose(self, A, b: np.ndarray) -> np.ndarray:
-        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance."""
+        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance; an iterative solver
+        grown dearer than a fresh one over this solve's decades is rebuilt at ``A`` first."""
         if not np.any(b):
             return np.zeros_like(b)
+        if self._dearer_than_fresh(-math.log10(self.rtol)):
+            log.info("the preconditioner went stale over the Newton steps (%.1f iterations per decade, "
+                     "%.1f fresh); a new one for the transposed solve", self.last_cost, self.fresh_cost)
+            self.stale = True
         if self._usable(A) and hasattr(self.solver, "solve_with"):    # a solver with its own Krylov norm
             try:
                 return self.solver.solve_with(A, b, transpose=True)

@@ -29,13 +29,13 @@ class CoupledSettings:
     renamed_keys = {"linear_solver": "jacobian_solver"}     # the old name, accepted with a warning
 
     method: str = option("auto", choices=("auto", "partitioned", "monolithic"),
-                         doc="fixed point with Aitken relaxation, or Newton on the block Jacobian "
+                         doc="fixed point (Gauss-Seidel sweeps, the next u by the interface quasi-Newton method IQN-ILS), or Newton on the block Jacobian "
                              "(needs a mover with a residual form); auto: monolithic when the mover "
                              "has a residual form, partitioned otherwise")
     tol: float = option(1e-9, gt=0, lt=1, doc="relative change of u (partitioned) or residual "
                                                "per block (monolithic)")
     max_iter: int = option(60, ge=1, le=10_000, doc="coupling iterations")
-    relaxation: float = option(0.5, gt=0, le=1, doc="first Aitken relaxation factor")
+    relaxation: float = option(0.5, gt=0, le=1, doc="partitioned: the relaxation factor of the first sweep (IQN-ILS from the second)")
     quasi_newton: bool = option(True, doc="monolithic: keep the shape derivatives (F_x, S_x) of the "
                                           "first iterate for the rest of the Newton solve (the "
                                           "adjoint gets the exact ones of the converged state)")

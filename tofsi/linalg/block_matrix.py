@@ -1,0 +1,129 @@
+"""A square matrix kept as its field blocks: products without assembling it.
+
+A coupled Jacobian ``[[dR_a/dz_b]]`` is made of blocks the fields already own
+(their Jacobians and their couplings). Krylov solvers need only its products
+``A v`` and ``A^T v``, and a block preconditioner only its diagonal blocks
+and the blocks below (or above) them, so the blocks are kept as they are:
+no stacking into one sparse matrix per Newton step, no slicing it back into
+blocks for the preconditioner. :meth:`BlockMatrix.tocsr` assembles the whole
+matrix where a whole-matrix factorization asks for it.
+
+    A = BlockMatrix({(0, 0): A00, (0, 2): A02, ...}, sizes=(n0, n1, n2))
+    A @ v, A.T @ v, A.sub((1, 2), (1, 2)).tocsr()
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from tofsi.linalg.backends import canonical_csr
+
+
+class BlockMatrix:
+    """``blocks[(i, j)]`` (sparse, or absent: zero) of a matrix whose unknowns are stacked in
+    blocks of ``sizes``; immutable. ``A @ v``, ``A.T``, :meth:`sub` and :meth:`tocsr`."""
+
+    def __init__(self, blocks: dict, sizes):
+        self.sizes = tuple(int(s) for s in sizes)
+        self.starts = np.concatenate([[0], np.cumsum(self.sizes)]).astype(int)
+        n = int(self.starts[-1])
+        self.shape = (n, n)
+        self.blocks = {}
+        for (i, j), B in blocks.items():
+            if B is None:
+                continue
+            if B.shape != (self.sizes[i], self.sizes[j]):
+                raise ValueError(f"block ({i}, {j}) is {B.shape}, not {(self.sizes[i], self.sizes[j])}")
+            self.blocks[(i, j)] = B
+        self.dtype = np.result_type(*[B.dtype for B in self.blocks.values()]) if self.blocks else np.float64
+        self.nnz = sum(B.nnz for B in self.blocks.values())
+
+    @classmethod
+    def from_sparse(cls, A, sizes) -> "BlockMatrix":
+        """The blocks of an assembled square matrix ``A`` cut at ``sizes``."""
+        A = canonical_csr(A)
+        starts = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        if starts[-1] != A.shape[0] or A.shape[0] != A.shape[1]:
+            raise ValueError(f"block sizes {list(sizes)} do not make up the {A.shape} matrix")
+        blocks = {}
+        for i in range(len(sizes)):
+            rows = A[starts[i]:starts[i + 1]]
+            for j in range(len(sizes)):
+                B = rows[:, starts[j]:starts[j + 1]]
+                if B.nnz:
+                    blocks[(i, j)] = B.tocsr()
+        return cls(blocks, sizes)
+
+    def _apply(self, v: np.ndarray, transpose: bool) -> np.ndarray:
+        v = np.asarray(v)
+        out = np.zeros(self.shape[0], dtype=np.result_type(self.dtype, v.dtype))
+        s = self.starts
+        for (i, j), B in self.blocks.items():
+            if transpose:
+                out[s[j]:s[j + 1]] += B.T @ v[s[i]:s[i + 1]]
+            else:
+                out[s[i]:s[i + 1]] += B @ v[s[j]:s[j + 1]]
+        return out
+
+    def matvec(self, v: np.ndarray) -> np.ndarray:
+        return self._apply(np.ravel(v), False)
+
+    def rmatvec(self, v: np.ndarray) -> np.ndarray:
+        return self._apply(np.ravel(v), True)
+
+    def __matmul__(self, v):
+        if sp.issparse(v) or np.ndim(v) != 1:
+            raise TypeError("a BlockMatrix multiplies vectors (tocsr() for anything else)")
+        return self.matvec(v)
+
+    @property
+    def T(self) -> "BlockMatrix":
+        """The transposed matrix (the blocks' transposes, no copies)."""
+        return BlockMatrix({(j, i): B.T for (i, j), B in self.blocks.items()}, self.sizes)
+
+    def sub(self, rows, cols) -> "BlockMatrix":
+        """The matrix of the block rows ``rows`` and block columns ``cols`` (tuples of indices);
+        rectangular ones have ``shape`` (rows' size, cols' size)."""
+        rows, cols = tuple(rows), tuple(cols)
+        blocks = {(a, b): self.blocks[(i, j)] for a, i in enumerate(rows) for b, j in enumerate(cols)
+                  if (i, j) in self.blocks}
+        return _Rectangular(blocks, [self.sizes[i] for i in rows], [self.sizes[j] for j in cols])
+
+    def tocsr(self) -> sp.csr_matrix:
+        """The assembled matrix (canonical CSR)."""
+        return _Rectangular(self.blocks, self.sizes, self.sizes).tocsr()
+
+
+class _Rectangular:
+    """Block rows by block columns, for products (``@``) and assembly (``tocsr``) only."""
+
+    def __init__(self, blocks: dict, row_sizes, col_sizes):
+        self.blocks = blocks
+        self.row_sizes, self.col_sizes = list(row_sizes), list(col_sizes)
+        self.row_starts = np.concatenate([[0], np.cumsum(self.row_sizes)]).astype(int)
+        self.col_starts = np.concatenate([[0], np.cumsum(self.col_sizes)]).astype(int)
+        self.shape = (int(self.row_starts[-1]), int(self.col_starts[-1]))
+
+    def __bool__(self) -> bool:
+        return bool(self.blocks)
+
+    def __matmul__(self, v: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.shape[0], dtype=np.result_type(v.dtype, *[B.dtype for B in self.blocks.values()]))
+        r, c = self.row_starts, self.col_starts
+        for (i, j), B in self.blocks.items():
+            out[r[i]:r[i + 1]] += B @ v[c[j]:c[j + 1]]
+        return out
+
+    @property
+    def T(self) -> "_Rectangular":
+        return _Rectangular({(j, i): B.T for (i, j), B in self.blocks.items()}, self.col_sizes, self.row_sizes)
+
+    def tocsr(self) -> sp.csr_matrix:
+        rows = []
+        for i, m in enumerate(self.row_sizes):         # CSR fast paths: no COO round trip, unlike bmat
+            parts = [canonical_csr(self.blocks[(i, j)]) if (i, j) in self.blocks else sp.csr_matrix((m, n))
+                     for j, n in enumerate(self.col_sizes)]
+            rows.append(sp.hstack(parts, format="csr") if len(parts) > 1 else parts[0])
+        A = sp.vstack(rows, format="csr") if len(rows) > 1 else rows[0]
+        return canonical_csr(A)
