@@ -53,12 +53,13 @@ def petsc_or_skip():
     return mpiexec
 
 
-def run_on_two_ranks(script: str, *args: str) -> None:
+def run_on_two_ranks(script: str, *args: str, check: bool = True) -> subprocess.CompletedProcess:
     """``mpiexec -n 2 python script args`` from the repository root, as root if need be."""
     mpiexec = petsc_or_skip()
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMPI_MCA_rmaps_base_oversubscribe": "1",
            "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1"}
-    subprocess.run([mpiexec, "-n", "2", sys.executable, script, *args], cwd=ROOT, env=env, check=True, timeout=300)
+    return subprocess.run([mpiexec, "-n", "2", sys.executable, script, *args], cwd=ROOT, env=env, check=check,
+                          timeout=300, capture_output=not check, text=True)
 
 
 @pytest.mark.parametrize("amg", ["gamg", "hypre"])
@@ -192,6 +193,21 @@ def test_tofsi_optimize_resumes_under_mpiexec(tmp_path):
                        tmp_path / "serial")
     serial.run()
     assert_follows(out, serial)
+
+
+def test_a_failed_solve_under_mpiexec_ends_in_exit_3_on_every_rank(tmp_path):
+    """Two Newton steps cannot solve the pipe bend at Re 10: the stage's first design fails on
+    every rank alike, rank 0's optimizer gives up (no bridge before the first stage) and releases
+    the serving rank -- exit status 3, the diagnostic and run.json written by rank 0, no hang."""
+    import json
+    out = tmp_path / "failed"
+    sets = [*DISTRIBUTED, "optimizer.max_iter=4", "fluid.newton_max_iter=2"]
+    done = run_on_two_ranks("-m", "tofsi.cli", "optimize", PIPE_BEND, *[a for s in sets for a in ("--set", s)],
+                            "--output", str(out), "-q", check=False)
+    assert done.returncode == 3, done.stderr
+    assert "no convergence in 2 Newton iterations" in done.stderr
+    assert json.loads((out / "run.json").read_text())["status"] == "numerical failure"
+    assert "error" in json.loads((out / "diagnostic.json").read_text())
 
 
 @pytest.mark.parametrize("scene, sets, key", [
