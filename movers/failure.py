@@ -19,7 +19,7 @@ def broken_element(problem, x: np.ndarray, det_min: np.ndarray | None = None) ->
     """The element a trial displacement ``x`` (2n,) breaks: the one with the smallest
     ``det F`` when some is <= 0 (``det_min`` (Em,), per element), else the most inverted by
     its corners; None when no element is inverted. Numbered by the mesh
-    (``problem.element_ids`` of the :class:`~movers.base.MotionProblem`), located at its
+    (``problem.element_ids`` of the :class:`~movers.problem.MotionProblem`), located at its
     reference centre."""
     P = problem.points + np.asarray(x).reshape(-1, 2)
     corners = quality.corner_jacobians(P, problem.quads).min(axis=1)          # (Em,)

@@ -36,7 +36,8 @@ from typing import Callable
 
 import numpy as np
 
-from movers.base import MotionProblem, MoveReport, element_apply, quality_record, transposed_solve
+from movers.base import MoveReport, element_apply, quality_record, transposed_solve
+from movers.problem import MotionProblem
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
 

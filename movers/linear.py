@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from movers.base import MotionProblem, Mover, MoveReport, MoveResult
+from movers.base import Mover, MoveReport, MoveResult
+from movers.problem import MotionProblem
 from movers.incremental import increments_vjp, run_increments
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError

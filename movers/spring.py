@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from movers.base import MotionProblem, Mover, MoveReport, MoveResult
+from movers.base import Mover, MoveReport, MoveResult
+from movers.problem import MotionProblem
 from movers.incremental import increment, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, quad_stiffness
 from tofsi.mesh import quality

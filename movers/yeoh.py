@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from movers.base import MotionProblem, Mover, MoveReport, MoveResult, element_apply, quality_record
+from movers.base import Mover, MoveReport, MoveResult, element_apply, quality_record
+from movers.problem import MotionProblem
 from movers.failure import Trouble, broken_element, describe_break
 from movers.incremental import system
 from movers.yeoh_kernel import YeohKernel

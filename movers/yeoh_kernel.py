@@ -32,7 +32,7 @@ BLOCK = 2048          # elements per block of the material law (8192 Gauss point
 class YeohKernel:
     """Batched residual and tangent of the Yeoh mesh on a fixed reference mesh.
 
-    problem : the :class:`~movers.base.MotionProblem` (its points, quads and
+    problem : the :class:`~movers.problem.MotionProblem` (its points, quads and
     stiffening); params : the mover's parameters (``A10, A20, A30, kappa``);
     stiffening : factors ``(Em,)`` instead of the problem's (may be complex).
     """

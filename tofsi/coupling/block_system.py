@@ -14,22 +14,9 @@ components, in topological order, are solved one after the other:
     change ``|z~ - z| / |z~|`` is at most ``tol``; the blocks before it in
     the sweep are then solved once more, so every field is consistent; or
   - monolithic: Newton on the block Jacobian ``[[dR_a/dz_b]]`` (every block of
-    the cycle needs a residual form; kept as its blocks, :class:`~tofsi.linalg.BlockMatrix`), with
-    a backtracking line search on the largest block residual scaled by the
-    block's force scale. Each Newton step is solved inexactly, to the
-    Eisenstat-Walker relative tolerance (:func:`tofsi.core.iteration.forcing_term`;
-    convergence is judged on the true residual), by GMRES preconditioned with
-    block Gauss-Seidel over the fields' own factorizations (``jacobian_solver =
-    "block"``, :class:`~tofsi.linalg.BlockGaussSeidel`; the whole Jacobian's LU
-    when GMRES fails) or by the whole Jacobian's LU (``"direct"``), either kept
-    for the later iterates and the adjoint. With ``quasi_newton`` the couplings a block marks as
-    slow to build and slow to change (``FieldBlock.slow_couplings``: the shape
-    derivatives with respect to the mesh motion) are built at the first
-    iterate and kept while the Newton contracts (a step that leaves more than
-    ``SLOW_CONTRACTION`` of the residual rebuilds them at its iterate); the
-    converged state's exact couplings are built once, for the adjoint. A Newton
-    whose residual falls by less than ``STALL_FACTOR`` in ``STALL_ITERATIONS``
-    steps stops early (a load step's cutback is cheaper than its crawl).
+    the cycle needs a residual form) with a backtracking line search, each step
+    solved inexactly by :meth:`BlockSystem.linear_solver`
+    (:mod:`tofsi.coupling.monolithic`).
 
 Both report their history and raise :class:`~tofsi.core.errors.NumericalError`
 when they do not converge. The system also gives the split of a stacked
@@ -48,15 +35,12 @@ import scipy.sparse as sp
 
 from tofsi.core.blocks import Continuation, FieldBlock, Linearization, State
 from tofsi.core.errors import InputError, NumericalError
-from tofsi.core.iteration import InterfaceQuasiNewton, backtracking, forcing_term
+from tofsi.core.iteration import InterfaceQuasiNewton
 from tofsi.linalg import BlockGaussSeidel, BlockMatrix, LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import canonical_csr, resolve
+from tofsi.coupling.monolithic import solve_monolithic
 
 log = logging.getLogger(__name__)
-EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exactly" (after a failed line search)
-SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
-STALL_ITERATIONS = 16    # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
-STALL_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
@@ -72,22 +56,6 @@ class CouplingSettings:
     relax: str | None = None
     quasi_newton: bool = True
     jacobian_solver: str = "block"
-
-
-class CoupledLinearization:
-    """The monolithic Jacobian of a cycle at its solution and the Newton's factorization."""
-
-    def __init__(self, system: "BlockSystem", names: tuple[str, ...], lins: dict, solver):
-        self.system, self.names, self.lins, self.solver = system, names, lins, solver
-        self._J = None
-
-    def matrix(self) -> BlockMatrix:
-        if self._J is None:
-            self._J = self.system.block_jacobian(self.lins, self.names)
-        return self._J
-
-    def solve_transpose(self, b: np.ndarray) -> np.ndarray:
-        return self.solver.solve_transpose(self.matrix(), b)
 
 
 class BlockSystem:
@@ -252,7 +220,7 @@ class BlockSystem:
             if len(comp) == 1:
                 fields[comp[0]] = self._solve_block(comp[0], fields, state, progress)
             elif self.method_for(comp) == "monolithic":
-                self._monolithic(comp, fields, state)
+                solve_monolithic(self, comp, fields, state)
             else:
                 self._partitioned(comp, fields, state, progress)
         state.fields = fields
@@ -268,8 +236,8 @@ class BlockSystem:
             state.reports[block.report_name] = report
         return value
 
-    def _start(self, comp, fields, state, progress) -> None:
-        """Fill the fields of ``comp`` that have no guess: one sweep in order (each block
+    def start(self, comp, fields, state, progress=None) -> None:
+        """Fill the fields of the cycle ``comp`` that have no guess: one sweep in order (each block
         solved with the latest values of the others, absent ones at their initial value)."""
         if all(fields[n] is not None for n in comp):
             return
@@ -308,96 +276,3 @@ class BlockSystem:
                 return
         raise NumericalError(f"partitioned coupling did not converge in {s.max_iter} iterations",
                              {"history": history})
-
-    def _monolithic(self, comp, fields, state) -> None:
-        s = self.settings
-        rho, params = state.rho, state.params
-        self._start(comp, fields, state, None)
-        solver = self.linear_solver(comp)
-        blocks = [self.by_name[n] for n in comp]
-        scales, history, kept = None, [], None
-
-        def merit(values: dict, linearize: bool = False) -> tuple[float, dict | None]:
-            """The largest scaled residual norm at ``values``; with ``linearize`` read from the
-            blocks' linearizations there (returned too), so that the Jacobians of an accepted
-            full step come from the same element passes as its residuals."""
-            lins_at = {b.name: b.linearize(values, rho, params) for b in blocks} if linearize else None
-            residuals = ([lins_at[b.name].residual for b in blocks] if linearize
-                         else [b.residual(values, rho, params) for b in blocks])
-            return max(float(np.linalg.norm(r)) / sc for r, sc in zip(residuals, scales, strict=True)), lins_at
-
-        accepted = None                                 # the accepted full step's linearizations
-        for it in range(s.max_iter + 1):
-            lins = accepted or {b.name: b.linearize(fields, rho, params) for b in blocks}
-            R = [lins[b.name].residual for b in blocks]
-            if scales is None:
-                scales = [b.residual_scale(fields, rho, params, lins[b.name]) for b in blocks]
-            norms = [float(np.linalg.norm(r)) / sc for r, sc in zip(R, scales, strict=True)]
-            history.append({"iteration": it, **dict(zip(comp, norms, strict=True))})
-            log.info("monolithic Newton %d: scaled residuals %s", it,
-                     ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms, strict=True)))
-            if max(norms) <= s.tol:
-                state.linearizations.update(lins)
-                state.coupled[comp] = CoupledLinearization(self, comp, lins, solver)
-                state.reports["coupling"] = {"method": "monolithic", "history": history}
-                return
-            if it == s.max_iter:
-                break
-            merits = [max(h[n] for n in comp) for h in history]
-            if it >= STALL_ITERATIONS and merits[-1] * STALL_FACTOR > merits[-1 - STALL_ITERATIONS]:
-                raise NumericalError(
-                    f"monolithic coupling stagnated: the largest scaled residual fell from "
-                    f"{merits[-1 - STALL_ITERATIONS]:.3g} to {merits[-1]:.3g} in {STALL_ITERATIONS} Newton steps",
-                    {"history": history})
-            if kept and it > 0 and merits[-1] > SLOW_CONTRACTION * merits[-2]:   # kept ones gone stale
-                log.info("monolithic Newton %d: the residual contracted by only %.2f; the slow couplings "
-                         "of this iterate from here on", it, merits[-1] / merits[-2])
-                history[-1]["couplings_rebuilt"] = True
-                kept = None
-            if kept is None and s.quasi_newton:         # the slow couplings of the first iterate (or a later)
-                kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
-                        for o in getattr(b, "slow_couplings", ()) if o in comp}
-            b = -np.concatenate(R)
-            eta = forcing_term(merits, s.tol)           # inexact Newton
-            found, solver = self._newton_step(comp, lins, kept, b, eta, solver, fields, merit, max(norms),
-                                              history)
-            if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
-                log.info("monolithic Newton %d: no decrease along the %s step; the exact Newton step "
-                         "from here on", it, "quasi-Newton" if kept else "inexact")
-                history[-1]["exact_step"] = True
-                kept = {}                                      # the true couplings from here on
-                found, solver = self._newton_step(comp, lins, kept, b, EXACT_STEP, solver, fields, merit,
-                                                  max(norms), history)
-            if found is None:
-                raise NumericalError("monolithic coupling: line search found no decrease",
-                                     {"history": history})
-            values, accepted = found[1]
-            if found[0] < 1.0:
-                log.info("monolithic Newton %d: step length %g", it, found[0])
-            fields.update(values)
-        raise NumericalError(f"monolithic coupling did not converge in {s.max_iter} Newton iterations",
-                             {"history": history})
-
-    def _newton_step(self, comp, lins, kept, b, rtol, solver, fields, merit, norm, history):
-        """One Newton step of the monolithic solve: the block Jacobian (with the ``kept`` couplings)
-        solved to ``rtol``, then the backtracking line search on the merit. Returns ``(the accepted
-        fields or None, the solver)`` -- the whole Jacobian's LU when GMRES fails."""
-        J = self.block_jacobian(lins, comp, kept)
-        try:
-            step = solver.solve(J, b, rtol=rtol)
-        except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
-            log.warning("monolithic Newton %d: %s; factorizing the whole Jacobian instead", len(history) - 1, err)
-            history[-1]["fallback"] = "direct"
-            solver = self.linear_solver(comp, "direct")
-            step = solver.solve(J, b, rtol=rtol)
-        dz = self.split(step, comp)
-
-        def trial(alpha):                         # the full step linearized: the next iterate's
-            values = dict(fields)
-            values.update({n: fields[n] + alpha * dz[n] for n in comp})
-            value, lins_at = merit(values, linearize=(alpha == 1.0))
-            return value, (values, lins_at)
-        found = backtracking(norm, trial)
-        if found is not None:
-            history[-1]["step_length"] = found[0]
-        return found, solver

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 import movers
-from movers.base import MotionProblem, MoveResult
+from movers.base import MoveResult
+from movers.problem import MotionProblem
 from tofsi.mesh import quality
 from tofsi.mesh.channel import build_mesh
 from tofsi.coupling.deformation import prescribed_motion

@@ -10,18 +10,22 @@ design whose solve failed, the failure (a ``FailedEvaluation``, so
 the replay falls back exactly where the run did); the history so far; the
 stage's start and scale; the last coupled state's fields (the next solve's
 warm start); and the problem's identity (:func:`tofsi.optimization.resume.identity`).
-Written atomically after every computed evaluation.
+Written atomically after every computed evaluation; read back into the
+running stage a resume restarts (:func:`resume_stage`).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 
 from tofsi.core.blocks import Continuation, Stage, State
+from tofsi.coupling.coupled import continuation
+from tofsi.optimization.history import Iteration
 from tofsi.optimization.protocol import Evaluation, FailedEvaluation
+from tofsi.optimization.stages import StageRun
 from tofsi.runs.output import atomic_write, to_json
 from tofsi.optimization.resume import check_resume, identity, read_checkpoint
 
@@ -102,3 +106,29 @@ def read_stage(path, problem) -> tuple[dict, list[Evaluation | FailedEvaluation]
     state = State(rho=data["rho"], converged=True,
                   fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})
     return meta, replay, state
+
+
+def resume_stage(path, problem) -> tuple[list[Iteration], int, StageRun, State]:
+    """What a resume from the checkpoint at ``path`` restarts with: the history rows before
+    the running stage's, the run's fallbacks before the stage, the stage as a
+    :class:`~tofsi.optimization.stages.StageRun` whose evaluations are to be replayed (each
+    successful one with its recorded time; the last with the checkpoint's state, so its
+    evaluation is written again) and that last state (the next solve's warm start).
+    Checked against ``problem`` as :func:`read_stage` checks."""
+    meta, replay, state = read_stage(path, problem)
+    succeeded = [k for k, e in enumerate(replay) if not e.failed]
+    skip = meta["history"][-1]["iteration"] + 1 - len(succeeded)
+    history = [Iteration.from_row(h) for h in meta["history"][:skip]]
+    for k, row in zip(succeeded, meta["history"][skip:], strict=True):
+        replay[k] = replace(replay[k], time_s=row["time_s"])
+    if succeeded:                  # the last one's state is the checkpoint's: its evaluation
+        replay[succeeded[-1]] = replace(replay[succeeded[-1]], state=state)   # is written again
+    fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
+    stage, scene = meta["stage"], problem.scene
+    run = StageRun(stage, np.asarray(meta["stage_start"], dtype=float), meta["scale"], replay=replay,
+                   fallbacks_at_start=fallbacks, first_row=skip,
+                   record=stage_record(meta.get("params")) or continuation(scene, stage),
+                   pending=[stage_record(r) for r in meta.get("pending", [])],
+                   previous=stage_record(meta.get("previous")) or (continuation(scene, stage - 1)
+                                                                   if stage else None))
+    return history, fallbacks, run, state

@@ -58,7 +58,7 @@ import nlopt
 import numpy as np
 
 from tofsi.core.blocks import Stage
-from tofsi.optimization.checkpoint import read_stage, stage_record, write_checkpoint
+from tofsi.optimization.checkpoint import resume_stage, write_checkpoint
 from tofsi.coupling.coupled import continuation
 from tofsi.core.errors import InputError, NumericalError
 from tofsi.core.finite import require_finite
@@ -181,23 +181,8 @@ class Optimizer:
         p, s, d = self.problem, self.settings, self.design
         gamma = p.initial_design()
         run, previous = None, None
-        if resume:
-            meta, replay, state = read_stage(self.checkpoint_path, p)
-            succeeded = [k for k, e in enumerate(replay) if not e.failed]
-            skip = meta["history"][-1]["iteration"] + 1 - len(succeeded)
-            self.history = [Iteration.from_row(h) for h in meta["history"][:skip]]
-            for k, row in zip(succeeded, meta["history"][skip:], strict=True):
-                replay[k] = replace(replay[k], time_s=row["time_s"])
-            if succeeded:                  # the last one's state is the checkpoint's: its evaluation
-                replay[succeeded[-1]] = replace(replay[succeeded[-1]], state=state)   # is written again
-            self.fallbacks = meta.get("fallbacks_at_start", 0)       # the stage's own are replayed
-            stage = meta["stage"]
-            run = StageRun(stage, np.asarray(meta["stage_start"], dtype=float), meta["scale"], replay=replay,
-                           fallbacks_at_start=self.fallbacks, first_row=skip,
-                           record=stage_record(meta.get("params")) or continuation(self.scene, stage),
-                           pending=[stage_record(r) for r in meta.get("pending", [])],
-                           previous=stage_record(meta.get("previous")) or (continuation(self.scene, stage - 1)
-                                                                           if stage else None))
+        if resume:                          # the checkpoint's stage, its evaluations to replay
+            self.history, self.fallbacks, run, state = resume_stage(self.checkpoint_path, p)
             previous = run.previous
             p.set_guess(state)
         for stage in range(run.stage if run else 0, end):

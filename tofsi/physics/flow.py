@@ -16,62 +16,34 @@ pressure is pinned at one corner.
 
 Steady Navier-Stokes is solved by Newton's method with a backtracking line
 search on ``|R|``; when it fails, by continuation in the fluid density
-(Reynolds number) from Stokes flow. Every solve reports its history and
-raises :class:`~tofsi.core.errors.NumericalError` rather than return an
-unconverged state. The Brinkman convexity ``q`` is an input of every call
+(Reynolds number) from Stokes flow (:mod:`tofsi.physics.flow_newton`). Every
+solve reports its history and raises :class:`~tofsi.core.errors.NumericalError`
+rather than return an unconverged state. The Brinkman convexity ``q`` is an input of every call
 (``params``, a :class:`~tofsi.core.blocks.Continuation`); a solve creates its own
-linear solver, so its result depends only on its inputs.
+linear solver, so its result depends only on its inputs. This module holds the
+discretization: the state's layout, the residual, its Jacobian and partials (each
+evaluation kept, keyed by every input), the linear solver's factorizer and the figures.
 """
 
 from __future__ import annotations
-
-import logging
-import time
-from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
 from tofsi.core.blocks import Continuation
-from tofsi.core.errors import InputError, NumericalError
+from tofsi.core.errors import InputError
 from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.geometry import map_points
 from tofsi.physics.interpolation import Brinkman
-from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.core.kept import Kept, input_key
 from tofsi.linalg import LinearAlgebra, RecyclingSolver, nested_dissection
 from tofsi.physics.flow_boundary import FlowBoundary
+from tofsi.physics.flow_newton import FlowReport, FlowSolution, newton_solve
 from tofsi.physics.flow_preconditioner import flow_preconditioner
 from tofsi.physics.fluid_elements import ELEMENTS
 from tofsi.physics.flow_view import FlowCoefficients, FlowView
 from tofsi.physics.fluid_kernel import CHUNK
-
-log = logging.getLogger(__name__)
-ROUND_OFF = 64 * np.finfo(float).eps        # componentwise backward error that counts as exact
-
-
-@dataclass
-class FlowReport:
-    converged: bool = False
-    newton_iterations: int = 0
-    residual_history: list = field(default_factory=list)
-    continuation: list = field(default_factory=list)      # densities used when continuing
-    wall_time_s: float = 0.0
-
-    def as_dict(self) -> dict:
-        return asdict(self)
-
-
-@dataclass
-class FlowSolution:
-    """A converged flow with the Jacobian of its last Newton check and the solver that
-    holds the last factorization (the adjoint solves with both)."""
-
-    w: np.ndarray
-    report: FlowReport
-    jacobian: sp.csr_matrix
-    solver: RecyclingSolver
 
 
 class Flow:
@@ -343,27 +315,9 @@ class Flow:
     def newton_solve(self, x=None, rho=None, w0=None, params=None,
                      solver: RecyclingSolver | None = None) -> FlowSolution:
         """:meth:`solve` with the converged Jacobian and the solver (``solver``: one whose last
-        factorization may precondition this solve's Newton steps; a new one by default)."""
-        t0 = time.perf_counter()
-        report = FlowReport()
-        factorize = self.factorizer(x, rho, params)     # a previous design's factors start; new ones are this design's
-        solver = RecyclingSolver(factorize) if solver is None else solver.with_factorize(factorize)
-        w = self.initial(params) if w0 is None else np.where(self.bc.is_fixed, self.boundary_values(params), w0)
-        try:
-            w, J = self._newton(w, x, rho, self.density, report, params, solver)
-        except NumericalError as first:
-            if self.density == 0.0:
-                raise
-            log.info("Newton failed at full Reynolds number (%s); continuing from Stokes flow", first)
-            w, J = self._newton(self.initial(params), x, rho, 0.0, report, params, solver)
-            steps = self.settings.continuation_steps
-            for k in range(1, steps + 1):
-                density = self.density * k / steps
-                report.continuation.append(density)
-                w, J = self._newton(w, x, rho, density, report, params, solver)
-        report.converged = True
-        report.wall_time_s = time.perf_counter() - t0
-        return FlowSolution(w, report, J, solver)
+        factorization may precondition this solve's Newton steps; a new one by default):
+        :func:`tofsi.physics.flow_newton.newton_solve`."""
+        return newton_solve(self, x, rho, w0, params, solver)
 
     def residual_scale(self, x, density) -> float:
         """``|F|`` of the all-fluid state holding only the boundary values: the force scale the
@@ -373,60 +327,6 @@ class Flow:
             r = np.linalg.norm(self.bc.homogenize(self.residual(self.initial(), x, None, density)))
             return max(r, 1e-14 * max(1.0, abs(self.settings.inlet_velocity)))
         return self.kept_scale.get(self.evaluation_key(None, x, None, None, density), scale)
-
-    @staticmethod
-    def backward_error(J, w, r) -> float:
-        """Componentwise relative residual ``max_i |r_i| / (|J| |w|)_i``: round-off level
-        (~1e-16) means no more digits can be had, whatever the rows' scales (Brinkman rows
-        with alpha = 1e9 next to viscous rows of order 1)."""
-        size = abs(J) @ np.abs(w)
-        floor = 1e-300 + 1e-16 * size.max()
-        return float(np.max(np.abs(r) / (size + floor)))
-
-    def _newton(self, w, x, rho, density, report: FlowReport, params, solver):
-        """Newton with inexact (Eisenstat-Walker) solves and a backtracking line search whose
-        accepted full step's Jacobian is the next iteration's. Converged when ``|F|`` is below
-        ``newton_tol`` times the force scale, or when the componentwise backward error has
-        reached round-off (``ROUND_OFF``). Returns ``w`` and the Jacobian at ``w``."""
-        s = self.settings
-        scale = self.residual_scale(x, density)
-        history: list[float] = []
-        report.residual_history.append(history)
-        J, R = self.jacobian(w, x, rho, density, params)
-        for it in range(s.newton_max_iter + 1):
-            r = self.bc.homogenize(R)
-            norm = float(np.linalg.norm(r))
-            history.append(norm)
-            log.info("flow Newton %d (density %.4g): |R| = %.3e, target %.3e", it, density, norm,
-                     s.newton_tol * scale)
-            if not np.isfinite(norm):
-                raise NumericalError("flow solve: non-finite residual", {"history": history})
-            target = s.newton_tol * scale
-            if norm <= target or self.backward_error(J, w, r) <= ROUND_OFF:
-                return w, J
-            if it == s.newton_max_iter:
-                break
-            dw = solver.solve(J, -r, rtol=forcing_term(history, target))
-            dw[self.bc.fixed] = 0.0
-            report.newton_iterations += 1
-            J = None                          # let this Jacobian go before the trial's is assembled
-
-            def trial(alpha, w=w, dw=dw):
-                w_t = w + alpha * dw
-                if alpha == 1.0:                        # keep the Jacobian: next iteration's
-                    J_t, R_t = self.jacobian(w_t, x, rho, density, params)
-                else:
-                    J_t, R_t = None, self.residual(w_t, x, rho, density, params)
-                return float(np.linalg.norm(self.bc.homogenize(R_t))), (w_t, J_t, R_t)
-            found = backtracking(norm, trial)
-            if found is None:
-                raise NumericalError("flow solve: line search found no decrease",
-                                     {"history": history, "density": density})
-            w, J, R = found[1]
-            if J is None:
-                J, R = self.jacobian(w, x, rho, density, params)
-        raise NumericalError(f"flow solve: no convergence in {s.newton_max_iter} Newton iterations",
-                             {"history": history, "density": density})
 
     # ---- figures -------------------------------------------------------------------
     def figures(self, w, x=None, rho=None, params=None) -> dict:

@@ -37,7 +37,8 @@ import numpy as np
 import scipy.sparse as sp
 
 import movers
-from movers.base import MotionProblem, MoveResult
+from movers.base import MoveResult
+from movers.problem import MotionProblem
 from tofsi.mesh.band import find_band
 from tofsi.core.kept import Kept, input_key
 from tofsi.mesh.layers import element_layers, stiffening_field

@@ -1,0 +1,156 @@
+"""Monolithic Newton over a cycle of field blocks (two-way coupling solved as one system).
+
+Newton on the block Jacobian ``[[dR_a/dz_b]]`` of the cycle (every block of it
+needs a residual form; kept as its blocks, :class:`~tofsi.linalg.BlockMatrix`),
+with a backtracking line search on the largest block residual scaled by the
+block's force scale. Each Newton step is solved inexactly, to the
+Eisenstat-Walker relative tolerance (:func:`tofsi.core.iteration.forcing_term`;
+convergence is judged on the true residual), by the system's linear solver
+(:meth:`~tofsi.coupling.block_system.BlockSystem.linear_solver`: GMRES
+preconditioned with block Gauss-Seidel over the fields' own factorizations, the
+whole Jacobian's LU when GMRES fails, or the whole Jacobian's LU), kept for the
+later iterates and the adjoint. With ``quasi_newton`` the couplings a block
+marks as slow to build and slow to change (``FieldBlock.slow_couplings``: the
+shape derivatives with respect to the mesh motion) are built at the first
+iterate and kept while the Newton contracts (a step that leaves more than
+``SLOW_CONTRACTION`` of the residual rebuilds them at its iterate); the
+converged state's exact couplings are built once, for the adjoint
+(:class:`CoupledLinearization`). A Newton whose residual falls by less than
+``STALL_FACTOR`` in ``STALL_ITERATIONS`` steps stops early (a load step's
+cutback is cheaper than its crawl). It reports its history and raises
+:class:`~tofsi.core.errors.NumericalError` when it does not converge.
+
+The block system (:class:`~tofsi.coupling.block_system.BlockSystem`) gives the
+blocks, the block Jacobian, the split of a stacked step and the linear solver;
+this module holds the iteration alone.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from tofsi.core.errors import NumericalError
+from tofsi.core.iteration import backtracking, forcing_term
+from tofsi.linalg import BlockMatrix
+
+log = logging.getLogger(__name__)
+EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exactly" (after a failed line search)
+SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
+STALL_ITERATIONS = 16    # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
+STALL_FACTOR = 2.0
+
+
+class CoupledLinearization:
+    """The monolithic Jacobian of a cycle at its solution and the Newton's factorization."""
+
+    def __init__(self, system, names: tuple[str, ...], lins: dict, solver):
+        self.system, self.names, self.lins, self.solver = system, names, lins, solver
+        self._J = None
+
+    def matrix(self) -> BlockMatrix:
+        if self._J is None:
+            self._J = self.system.block_jacobian(self.lins, self.names)
+        return self._J
+
+    def solve_transpose(self, b: np.ndarray) -> np.ndarray:
+        return self.solver.solve_transpose(self.matrix(), b)
+
+
+def solve_monolithic(system, comp, fields, state) -> None:
+    """Solve the cycle ``comp`` of the block ``system`` in place: ``fields`` (a guess, or none:
+    one sweep first) become the solution, and ``state`` receives the blocks' linearizations,
+    the cycle's :class:`CoupledLinearization` and the report ``"coupling"``."""
+    s = system.settings
+    rho, params = state.rho, state.params
+    system.start(comp, fields, state)
+    solver = system.linear_solver(comp)
+    blocks = [system.by_name[n] for n in comp]
+    scales, history, kept = None, [], None
+
+    def merit(values: dict, linearize: bool = False) -> tuple[float, dict | None]:
+        """The largest scaled residual norm at ``values``; with ``linearize`` read from the
+        blocks' linearizations there (returned too), so that the Jacobians of an accepted
+        full step come from the same element passes as its residuals."""
+        lins_at = {b.name: b.linearize(values, rho, params) for b in blocks} if linearize else None
+        residuals = ([lins_at[b.name].residual for b in blocks] if linearize
+                     else [b.residual(values, rho, params) for b in blocks])
+        return max(float(np.linalg.norm(r)) / sc for r, sc in zip(residuals, scales, strict=True)), lins_at
+
+    accepted = None                                 # the accepted full step's linearizations
+    for it in range(s.max_iter + 1):
+        lins = accepted or {b.name: b.linearize(fields, rho, params) for b in blocks}
+        R = [lins[b.name].residual for b in blocks]
+        if scales is None:
+            scales = [b.residual_scale(fields, rho, params, lins[b.name]) for b in blocks]
+        norms = [float(np.linalg.norm(r)) / sc for r, sc in zip(R, scales, strict=True)]
+        history.append({"iteration": it, **dict(zip(comp, norms, strict=True))})
+        log.info("monolithic Newton %d: scaled residuals %s", it,
+                 ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms, strict=True)))
+        if max(norms) <= s.tol:
+            state.linearizations.update(lins)
+            state.coupled[comp] = CoupledLinearization(system, comp, lins, solver)
+            state.reports["coupling"] = {"method": "monolithic", "history": history}
+            return
+        if it == s.max_iter:
+            break
+        merits = [max(h[n] for n in comp) for h in history]
+        if it >= STALL_ITERATIONS and merits[-1] * STALL_FACTOR > merits[-1 - STALL_ITERATIONS]:
+            raise NumericalError(
+                f"monolithic coupling stagnated: the largest scaled residual fell from "
+                f"{merits[-1 - STALL_ITERATIONS]:.3g} to {merits[-1]:.3g} in {STALL_ITERATIONS} Newton steps",
+                {"history": history})
+        if kept and it > 0 and merits[-1] > SLOW_CONTRACTION * merits[-2]:   # kept ones gone stale
+            log.info("monolithic Newton %d: the residual contracted by only %.2f; the slow couplings "
+                     "of this iterate from here on", it, merits[-1] / merits[-2])
+            history[-1]["couplings_rebuilt"] = True
+            kept = None
+        if kept is None and s.quasi_newton:         # the slow couplings of the first iterate (or a later)
+            kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
+                    for o in getattr(b, "slow_couplings", ()) if o in comp}
+        b = -np.concatenate(R)
+        eta = forcing_term(merits, s.tol)           # inexact Newton
+        found, solver = newton_step(system, comp, lins, kept, b, eta, solver, fields, merit, max(norms),
+                                    history)
+        if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
+            log.info("monolithic Newton %d: no decrease along the %s step; the exact Newton step "
+                     "from here on", it, "quasi-Newton" if kept else "inexact")
+            history[-1]["exact_step"] = True
+            kept = {}                                      # the true couplings from here on
+            found, solver = newton_step(system, comp, lins, kept, b, EXACT_STEP, solver, fields, merit,
+                                        max(norms), history)
+        if found is None:
+            raise NumericalError("monolithic coupling: line search found no decrease",
+                                 {"history": history})
+        values, accepted = found[1]
+        if found[0] < 1.0:
+            log.info("monolithic Newton %d: step length %g", it, found[0])
+        fields.update(values)
+    raise NumericalError(f"monolithic coupling did not converge in {s.max_iter} Newton iterations",
+                         {"history": history})
+
+
+def newton_step(system, comp, lins, kept, b, rtol, solver, fields, merit, norm, history):
+    """One Newton step of the monolithic solve: the block Jacobian (with the ``kept`` couplings)
+    solved to ``rtol``, then the backtracking line search on the merit. Returns ``(the accepted
+    fields or None, the solver)`` -- the whole Jacobian's LU when GMRES fails."""
+    J = system.block_jacobian(lins, comp, kept)
+    try:
+        step = solver.solve(J, b, rtol=rtol)
+    except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
+        log.warning("monolithic Newton %d: %s; factorizing the whole Jacobian instead", len(history) - 1, err)
+        history[-1]["fallback"] = "direct"
+        solver = system.linear_solver(comp, "direct")
+        step = solver.solve(J, b, rtol=rtol)
+    dz = system.split(step, comp)
+
+    def trial(alpha):                         # the full step linearized: the next iterate's
+        values = dict(fields)
+        values.update({n: fields[n] + alpha * dz[n] for n in comp})
+        value, lins_at = merit(values, linearize=(alpha == 1.0))
+        return value, (values, lins_at)
+    found = backtracking(norm, trial)
+    if found is not None:
+        history[-1]["step_length"] = found[0]
+    return found, solver
