@@ -39,7 +39,7 @@ SMALL = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.2", "optimi
 
 
 def main(output: Path, overrides=(), overwrite: bool = False) -> dict:
-    """The headline: the scene above, with ``SMALL`` in small mode."""
+    """The two-way example at small motion: the scene above, with ``SMALL`` in small mode."""
     return optimize_scene(SCENE, output, overrides, overwrite, SMALL,
                           "Young's modulus raised from 5 kPa to 1 MPa, so the coarse gray designs of six "
                           "iterations hold against the flow", "examples/optimize_fsi.py")

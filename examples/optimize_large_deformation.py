@@ -1,6 +1,6 @@
 """Design a structure that the flow moves by a seventh of the channel: large-deformation two-way TOFSI.
 
-The headline's wall in a channel, three times softer (E = 1.5 kPa) and
+The README's headline: the wall of optimize_fsi.py, three times softer (E = 1.5 kPa) and
 modelled at finite strain (neo-Hookean, with the energy interpolation of
 nearly void elements), so the optimized design's solid moves about 0.15 m
 (15 % of the channel height, 6 elements) and the fluid mesh must follow it far

@@ -45,14 +45,14 @@ def commands(block: str) -> list[list[str]]:
 
 
 def test_the_first_bash_block_is_the_ci_commands():
-    """.ci/run executes the first bash block: the install with the headline (two-way) example, then the
+    """.ci/run executes the first bash block: the install with the headline (two-way, large-deformation) example, then the
     default tests; then it runs the acceptance tests. They are not rerun here (the example runs at a
     small size in this file, the tests are this suite)."""
     language, block = BLOCKS[0]
     lines = commands(block)
     assert language == "bash" and len(lines) == 2
-    assert "examples/optimize_fsi.py" in lines[0] and lines[1][:3] == ["python3", "-m", "pytest"]
-    assert (ROOT / "examples" / "optimize_fsi.py").is_file()
+    assert "examples/optimize_large_deformation.py" in lines[0] and lines[1][:3] == ["python3", "-m", "pytest"]
+    assert (ROOT / "examples" / "optimize_large_deformation.py").is_file()
     # then the acceptance tests, as README's text below the block says
     ci = (ROOT / ".ci" / "run").read_text().strip().splitlines()
     assert "python -m pytest -n 2 -m acceptance" in ci and "`python -m pytest -n 2 -m acceptance`" in README
