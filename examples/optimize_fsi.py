@@ -24,6 +24,7 @@ from pathlib import Path
 
 import tofsi
 from tofsi.commands.context import RunContext
+from tofsi.commands.hints import describe
 from tofsi.commands.optimize import Pictures
 from tofsi.coupling.coupled import continuation
 from tofsi.core.errors import InputError, WriteError
@@ -70,7 +71,7 @@ def optimize_scene(scene_file: Path, output: Path, overrides=(), overwrite: bool
                   f"  volume {it.volume:.4f}{quality}  {it.time_s:6.1f} s")
 
     def fallback(iteration, fallbacks, step, error):
-        print(f"  iteration {iteration:4d}  a trial design failed ({str(error)[:120]}); back to the last good "
+        print(f"  iteration {iteration:4d}  a trial design failed ({describe(error, 120)}); back to the last good "
               f"design, move limit {step:.3g} (fallback {fallbacks})")
 
     ctx = RunContext(output=Path(output), folder=folder,

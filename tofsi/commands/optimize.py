@@ -13,6 +13,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from tofsi.commands.hints import describe
 from tofsi.commands.solve import UNPHYSICAL
 from tofsi.linalg.threads import mpi_size
 from tofsi.mesh import quality
@@ -127,7 +128,7 @@ def optimize(problem, scene, args, ctx) -> dict:
         if not ctx.quiet:
             then = ("a bridging stage halfway from the previous stage first" if step is None else
                     f"back to the last good design, move limit {step:.3g}")
-            print(f"{iteration:5d} fallback {fallbacks}: a trial design failed ({str(error)[:160]}); {then}",
+            print(f"{iteration:5d} fallback {fallbacks}: a trial design failed ({describe(error, 160)}); {then}",
                   file=out, flush=True)
 
     optimizer = Optimizer(problem, ctx.output, on_iteration=line, on_picture=pictures, on_fallback=fallback)
