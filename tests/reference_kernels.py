@@ -130,6 +130,29 @@ def yeoh_S_D_3d(F2, A10, A20, A30, kappa):
     return S[:2, :2], D[:2, :2, :2, :2]
 
 
+def add_gauss_point(R, K, det, g, F, S, D):
+    """Add one Gauss point's share (weight ``det``) of a total-Lagrangian quad's internal forces
+    ``R_ai = int P_iJ dN_a/dX_J`` (``P = F S``) and tangent ``K_(ai)(bk) = int dN_a/dX_J [S_JL
+    delta_ik + F_iM D_MJNL F_kN] dN_b/dX_L`` (geometric and material parts), index by index;
+    ``g``: the shape gradients (4, 2), ``S`` the second Piola-Kirchhoff stress, ``D = dS/dE``."""
+    P = F @ S
+    for a in range(4):
+        for i in range(2):
+            R[2 * a + i] += det * sum(P[i, J] * g[a, J] for J in range(2))
+    for a in range(4):
+        for i in range(2):
+            for b in range(4):
+                for k in range(2):
+                    val = 0.0
+                    for J in range(2):
+                        for L in range(2):
+                            val += g[a, J] * S[J, L] * g[b, L] * (i == k)   # geometric
+                            for M in range(2):
+                                for N in range(2):
+                                    val += F[i, M] * g[a, J] * D[M, J, N, L] * F[k, N] * g[b, L]
+                    K[2 * a + i, 2 * b + k] += det * val
+
+
 def yeoh_quad(X, U, A10, A20, A30, kappa):
     """Residual (8,) and tangent (8, 8) of one quad, index by index."""
     R = np.zeros(8)
@@ -138,20 +161,27 @@ def yeoh_quad(X, U, A10, A20, A30, kappa):
         _, g, det = q1_at(xi, eta, X)
         F = np.eye(2) + sum(np.outer(U[a], g[a]) for a in range(4))
         S, D = yeoh_S_D_3d(F, A10, A20, A30, kappa)
-        P = F @ S
-        for a in range(4):
-            for i in range(2):
-                R[2 * a + i] += det * sum(P[i, J] * g[a, J] for J in range(2))
-        for a in range(4):
-            for i in range(2):
-                for b in range(4):
-                    for k in range(2):
-                        val = 0.0
-                        for J in range(2):
-                            for L in range(2):
-                                val += g[a, J] * S[J, L] * g[b, L] * (i == k)   # geometric
-                                for M in range(2):
-                                    for N in range(2):
-                                        val += F[i, M] * g[a, J] * D[M, J, N, L] * F[k, N] * g[b, L]
-                        K[2 * a + i, 2 * b + k] += det * val
+        add_gauss_point(R, K, det, g, F, S, D)
     return R, K
+
+
+# ---- inputs of the hyperelastic kernels' tests ---------------------------------------------------
+def distorted_quads(n=4, seed=0):
+    """``n`` quads ``(n, 4, 2)``: stretched unit squares with corners moved by up to 0.15."""
+    rng = np.random.default_rng(seed)
+    base = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    return np.stack([base * rng.uniform(0.5, 2.0, 2) + rng.uniform(-0.15, 0.15, (4, 2)) for _ in range(n)])
+
+
+def random_displacements(Xe, size, seed=1):
+    """Element displacements ``(E, 8)`` uniform in ``[-size, size]``."""
+    return size * np.random.default_rng(seed).uniform(-1, 1, (Xe.shape[0], 8))
+
+
+def taylor_rates(residual_of_eps, slope):
+    """Rates log2(r(eps)/r(eps/2)) of r(eps) = |f(eps) - f(0) - eps slope|, eps = 1e-2 / 2^k."""
+    f0 = residual_of_eps(0.0)
+    eps = 1e-2 / 2.0 ** np.arange(5)
+    r = np.array([np.linalg.norm(residual_of_eps(e) - f0 - e * slope) for e in eps])
+    return np.log2(r[:-1] / r[1:]), r
+

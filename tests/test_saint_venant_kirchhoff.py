@@ -17,7 +17,8 @@ import math
 import numpy as np
 import pytest
 
-from reference_kernels import GAUSS2, q1_at
+from reference_kernels import (GAUSS2, add_gauss_point, distorted_quads, q1_at, random_displacements,
+                               taylor_rates)
 from tofsi.fem.assembly import element_dofs
 from tofsi.fem.elasticity import element_stiffness, lame
 from tofsi.fem.hyperelastic import NonlinearWeight
@@ -52,45 +53,12 @@ def oracle_quad(X, U, lam, mu):
         F = np.eye(2, dtype=U.dtype) + sum(np.outer(U[a], g[a]) for a in range(4))
         E, S, D = svk_S_D(F, lam, mu)
         W += det * (0.5 * lam * np.trace(E) ** 2 + mu * np.sum(E * E))
-        P = F @ S
-        for a in range(4):
-            for i in range(2):
-                R[2 * a + i] += det * sum(P[i, J] * g[a, J] for J in range(2))
-        for a in range(4):
-            for i in range(2):
-                for b in range(4):
-                    for k in range(2):
-                        val = 0.0
-                        for J in range(2):
-                            for L in range(2):
-                                val += g[a, J] * S[J, L] * g[b, L] * (i == k)
-                                for M in range(2):
-                                    for N in range(2):
-                                        val += F[i, M] * g[a, J] * D[M, J, N, L] * F[k, N] * g[b, L]
-                        K[2 * a + i, 2 * b + k] += det * val
+        add_gauss_point(R, K, det, g, F, S, D)
     return R, K, W
-
-
-def distorted_quads(n=4, seed=0):
-    rng = np.random.default_rng(seed)
-    base = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
-    return np.stack([base * rng.uniform(0.5, 2.0, 2) + rng.uniform(-0.15, 0.15, (4, 2)) for _ in range(n)])
-
-
-def random_displacements(Xe, size, seed=1):
-    return size * np.random.default_rng(seed).uniform(-1, 1, (Xe.shape[0], 8))
 
 
 def block_mesh(nx=4, ny=3, length=2.0, height=1.0):
     return StructuredQuadMesh(np.linspace(0, length, nx + 1), np.linspace(0, height, ny + 1))
-
-
-def taylor_rates(residual_of_eps, slope):
-    """Rates log2(r(eps)/r(eps/2)) of r(eps) = |f(eps) - f(0) - eps slope|, eps = 1e-2 / 2^k."""
-    f0 = residual_of_eps(0.0)
-    eps = 1e-2 / 2.0 ** np.arange(5)
-    r = np.array([np.linalg.norm(residual_of_eps(e) - f0 - e * slope) for e in eps])
-    return np.log2(r[:-1] / r[1:]), r
 
 
 # ---- the kernel against the oracle -------------------------------------------------------------
