@@ -144,3 +144,33 @@ def test_the_preconditioner_holds_the_jacobian_as_its_blocks(outlet):
     v = rng.standard_normal(J.shape[0])
     np.testing.assert_allclose(P.matrix() @ v, J @ v, rtol=0, atol=1e-13 * abs(J).max() * np.abs(v).max())
     np.testing.assert_allclose(P.matrix().T @ v, J.T @ v, rtol=0, atol=1e-13 * abs(J).max() * np.abs(v).max())
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_the_lean_smoothed_aggregation_is_pyamgs_hierarchy(symmetric):
+    """The finest level built without copies of A gives pyamg's own hierarchy (a different
+    construction of the same operators): the same levels, P, R and Galerkin matrices to
+    round-off, with the same random start of the spectral radius estimate."""
+    import pyamg
+    from tofsi.linalg.amg import rigid_body_modes, smoothed_aggregation
+    K = sp.csr_matrix(pyamg.gallery.linear_elasticity((24, 24))[0])
+    A = K if symmetric else (K + 0.2 * (sp.tril(K, -1) - sp.triu(K, 1))).tocsr()   # same pattern, asymmetric
+    A.sort_indices()
+    points = np.stack(np.meshgrid(np.arange(24.0), np.arange(24.0), indexing="ij"), -1).reshape(-1, 2)
+    B = rigid_body_modes(points)
+    np.random.seed(3)
+    reference = pyamg.smoothed_aggregation_solver(A, B=B, symmetry="symmetric" if symmetric else "nonsymmetric",
+                                                  max_coarse=300, coarse_solver="splu")
+    np.random.seed(3)
+    lean = smoothed_aggregation(A, B, symmetric)
+    assert [level.A.shape for level in lean.levels] == [level.A.shape for level in reference.levels]
+    assert len(lean.levels) >= 2
+    for mine, theirs in zip(lean.levels[:-1], reference.levels[:-1]):
+        for name in ("P", "R"):
+            M, T = sp.csr_matrix(getattr(mine, name)), sp.csr_matrix(getattr(theirs, name))
+            assert abs(M - T).max() <= 1e-13 * abs(T).max()
+    for mine, theirs in zip(lean.levels[1:], reference.levels[1:]):
+        assert abs(sp.csr_matrix(mine.A) - sp.csr_matrix(theirs.A)).max() <= 1e-12 * abs(theirs.A).max()
+    b = np.random.default_rng(0).standard_normal(A.shape[0])
+    mine, theirs = lean.aspreconditioner() @ b, reference.aspreconditioner() @ b
+    assert np.linalg.norm(mine - theirs) <= 1e-10 * np.linalg.norm(theirs)

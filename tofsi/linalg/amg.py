@@ -1,4 +1,27 @@
-"""Smoothed-aggregation AMG with CG (or GMRES) for the structure and mesh-motion systems."""
+"""Smoothed-aggregation AMG with CG (or GMRES) for the structure and mesh-motion systems, and a
+smoothed-aggregation setup that does not copy the fine matrix.
+
+:func:`smoothed_aggregation` builds pyamg's default smoothed-aggregation
+hierarchy (symmetric strength of connection at ``theta = 0``, standard
+aggregation, candidates improved by four block Gauss-Seidel sweeps, one
+Jacobi smoothing step of the tentative prolongator ``T`` with ``omega =
+4/3``) with the finest level's intermediates formed without copies of ``A``:
+
+* the strength of connection at ``theta = 0`` keeps every stored entry, and
+  the aggregation reads only its pattern, so ``A``'s own pattern is passed
+  (pyamg forms the scaled ``|A|``: one copy of ``A`` held and two more
+  transient);
+* the smoothed prolongator ``P = T - (omega / rho(D^{-1} A)) D^{-1} A T`` is
+  formed as ``A T`` with its rows scaled afterwards (pyamg forms ``D^{-1} A``
+  and ``omega / rho D^{-1} A``: two copies of ``A``), ``rho`` estimated by
+  pyamg's Arnoldi iteration on the operator ``x -> D^{-1} A x``.
+
+The hierarchy is pyamg's to round-off (the same aggregates, ``P`` to 1e-15
+relative, the same iterations); the setup's transient above what it keeps
+falls from 9.9 to 2.7 kB per element for the flow's velocity block at
+16 200 elements (nonsymmetric: 14.1 to 6.7, a transposed copy of ``A`` among them) (``docs/parallel.md``). The coarser levels (a few thousand
+unknowns) are pyamg's own.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +30,14 @@ import logging
 import numpy as np
 import pyamg
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from pyamg.aggregation.aggregate import standard_aggregation
+from pyamg.aggregation.tentative import fit_candidates
+from pyamg.multilevel import MultilevelSolver
+from pyamg.relaxation.smoothing import change_smoothers
+from pyamg.relaxation.utils import relaxation_as_linear_operator
+from pyamg.util.linalg import approximate_spectral_radius
+from pyamg.util.utils import get_diagonal, scale_rows
 
 from tofsi.core.errors import NumericalError
 
@@ -22,6 +53,65 @@ def rigid_body_modes(points: np.ndarray) -> np.ndarray:
     B[0::2, 2] = -points[:, 1]
     B[1::2, 2] = points[:, 0]
     return B
+
+
+OMEGA = 4.0 / 3.0                                      # pyamg's Jacobi prolongation smoothing weight
+IMPROVE = ("block_gauss_seidel", {"sweep": "symmetric", "iterations": 4})   # pyamg's candidate improvement
+SMOOTHER = ("block_gauss_seidel", {"sweep": "symmetric"})                  # pyamg's pre- and post-smoother
+MAX_COARSE = 300
+
+
+def _improved(A, B: np.ndarray) -> np.ndarray:
+    """Near-null candidates ``B`` after pyamg's four symmetric block Gauss-Seidel sweeps on ``A x = 0``."""
+    return relaxation_as_linear_operator(IMPROVE, A, np.zeros((A.shape[0], 1), dtype=A.dtype)) @ B
+
+
+def _smoothed(A, T):
+    """``T - (omega / rho) D^{-1} A T``, ``rho`` the spectral radius of ``D^{-1} A`` (pyamg's
+    Jacobi prolongation smoother), without forming ``D^{-1} A``."""
+    d_inv = get_diagonal(A, inv=True)
+    DA = spla.LinearOperator(A.shape, matvec=lambda x: d_inv.reshape(-1, *([1] * (x.ndim - 1))) * (A @ x),
+                                  dtype=A.dtype)
+    weight = (OMEGA / approximate_spectral_radius(DA)) * d_inv
+    AT = sp.csr_array(A @ T)
+    AT = scale_rows(AT, weight, copy=False)
+    return T - AT
+
+
+def smoothed_aggregation(A, B: np.ndarray | None = None, symmetric: bool = True) -> MultilevelSolver:
+    """pyamg's ``smoothed_aggregation_solver(A, B, symmetry, max_coarse=300,
+    coarse_solver="splu")`` with the finest level built without copies of ``A``
+    (module docstring); ``A`` CSR with sorted indices, kept as level 0."""
+    A = sp.csr_array(A)
+    n = A.shape[0]
+    B = np.ones((n, 1)) if B is None else np.asarray(B, dtype=A.dtype).reshape(n, -1)
+    symmetry = "symmetric" if symmetric else "nonsymmetric"
+    if n <= MAX_COARSE:
+        return pyamg.smoothed_aggregation_solver(A, B=B, symmetry=symmetry, max_coarse=MAX_COARSE,
+                                                 coarse_solver="splu")
+    A.symmetry = symmetry
+    aggregates = standard_aggregation(sp.csr_array((A.data, A.indices, A.indptr), shape=A.shape))[0]
+    fine = MultilevelSolver.Level()
+    fine.A, fine.B = A, _improved(A, B)
+    T, B_coarse = fit_candidates(aggregates, fine.B)
+    fine.P = _smoothed(A, T)
+    if symmetric:
+        fine.R = fine.P.T
+        B_left = None
+    else:
+        AH = A.T.tocsr()
+        fine.BH = _improved(AH, B)
+        TH, B_left = fit_candidates(aggregates, fine.BH)
+        fine.R = _smoothed(AH, TH).T
+        del AH, TH
+    del T, aggregates
+    coarse = fine.R @ A @ fine.P
+    rest = pyamg.smoothed_aggregation_solver(coarse, B=B_coarse, BH=B_left, symmetry=symmetry,
+                                             improve_candidates=None,        # pyamg improves the finest only
+                                             max_coarse=MAX_COARSE, max_levels=9, coarse_solver="splu")
+    ml = MultilevelSolver([fine] + rest.levels, coarse_solver="splu")
+    change_smoothers(ml, SMOOTHER, SMOOTHER)
+    return ml
 
 
 class AMGSolver:
@@ -44,9 +134,7 @@ class AMGSolver:
         self.tol, self.max_iter = tol, max_iter
         self.accel = "cg" if symmetric else "gmres"
         self.symmetric = symmetric
-        self._ml = pyamg.smoothed_aggregation_solver(
-            self.A, B=near_null, symmetry="symmetric" if symmetric else "nonsymmetric",
-            max_coarse=300, coarse_solver="splu")
+        self._ml = smoothed_aggregation(self.A, near_null, symmetric)
         self.shape = A.shape
 
     def solve(self, b: np.ndarray) -> np.ndarray:

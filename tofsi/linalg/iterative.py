@@ -64,11 +64,11 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-import pyamg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from tofsi.core.errors import NumericalError
+from tofsi.linalg.amg import smoothed_aggregation
 from tofsi.linalg.krylov import gmres
 
 log = logging.getLogger(__name__)
@@ -100,9 +100,7 @@ def asymmetry(A: sp.csr_matrix, chunk: int = 1 << 20) -> float:
 
 
 def _amg(M: sp.csr_matrix, near_null=None, symmetric: bool = False):
-    return pyamg.smoothed_aggregation_solver(
-        M, B=near_null, symmetry="symmetric" if symmetric else "nonsymmetric",
-        max_coarse=300, coarse_solver="splu")
+    return smoothed_aggregation(M, near_null, symmetric)
 
 
 class BlockSaddlePreconditioner:
