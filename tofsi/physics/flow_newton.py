@@ -146,6 +146,7 @@ def newton(flow, w, x, rho, density, report: FlowReport, params, solver):
             raise NumericalError("flow solve: line search found no decrease",
                                  {"history": history, "density": density})
         w, J, R = found[1]
+        del found                         # (it holds this Jacobian: let it go with J)
         if J is None:
             J, R = flow.jacobian(w, x, rho, density, params)
     raise NumericalError(f"flow solve: no convergence in {s.newton_max_iter} Newton iterations",
