@@ -30,6 +30,7 @@ PARTS = [      # (part, a substring of the allocating frame "file:function"), fi
     ("Krylov basis (FGMRES/GMRES/CG)", "krylov/"),
     ("Krylov basis (FGMRES/GMRES/CG)", "recycling.py:flexible_gmres"),
     ("AMG hierarchy (velocity, pressure, structure)", "pyamg/"),
+    ("AMG hierarchy (velocity, pressure, structure)", "linalg/amg.py"),
     ("flow preconditioner: blocks and scaling", "iterative.py"),
     ("flow preconditioner: Schur parts", "flow_preconditioner.py"),
     ("assembly pattern slots", "assembly.py:_ensure_slots"),
