@@ -174,3 +174,31 @@ def test_the_lean_smoothed_aggregation_is_pyamgs_hierarchy(symmetric):
     b = np.random.default_rng(0).standard_normal(A.shape[0])
     mine, theirs = lean.aspreconditioner() @ b, reference.aspreconditioner() @ b
     assert np.linalg.norm(mine - theirs) <= 1e-10 * np.linalg.norm(theirs)
+
+
+@pytest.mark.parametrize("outlet", ["zero-pressure", "traction-free"])
+def test_the_iterative_path_assembles_the_jacobian_as_its_blocks(outlet):
+    """On the iterative path the flow's Jacobian is assembled as its blocks ``A``, ``B``: the
+    same entries as the assembled CSR matrix of the direct path (on a moved mesh), the same
+    products and ``|J| v``, and the preconditioner built from it keeps those very blocks."""
+    from tofsi.linalg.block_matrix import SaddlePointMatrix, absolute_product
+    h = 2.0 / 20
+    settings = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"fluid.outlet={outlet}"]
+    direct = tofsi.Problem(tofsi.load_scene(SCENE, settings)).model.flow
+    iterative = tofsi.Problem(tofsi.load_scene(SCENE, settings + ["solver.linear_solver=iterative"])).model.flow
+    rng = np.random.default_rng(7)
+    x = 0.01 * h * rng.standard_normal((direct.mesh.n_nodes, 2))
+    rho = rng.uniform(0, 1, direct.mesh.n_elements)
+    w = direct.initial() + 0.1 * rng.standard_normal(direct.size) * ~direct.bc.is_fixed
+    J = direct.jacobian(w, x, rho)[0]
+    blocks = iterative.jacobian(w, x, rho)[0]
+    assert isinstance(blocks, SaddlePointMatrix)
+    assert abs(blocks.tocsr() - J).max() == 0.0
+    v = rng.standard_normal(J.shape[0])
+    scale = 1e-13 * abs(J).max() * np.abs(v).max()
+    np.testing.assert_allclose(blocks @ v, J @ v, rtol=0, atol=scale)
+    np.testing.assert_allclose(blocks.T @ v, J.T @ v, rtol=0, atol=scale)
+    np.testing.assert_allclose(absolute_product(blocks, np.abs(v)), abs(J) @ np.abs(v), rtol=1e-13)
+    np.testing.assert_allclose(absolute_product(J, np.abs(v), rows=100), abs(J) @ np.abs(v), rtol=1e-13)
+    P = flow_preconditioner(iterative, blocks, x, rho)
+    assert P.A is blocks.A and P.B is blocks.B

@@ -123,3 +123,55 @@ class SparsePattern:
 def assemble_vector(dofs: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
     """Global vector from element vectors ``values`` ``(E, a)`` on ``dofs`` ``(E, a)``."""
     return np.bincount(dofs.ravel(), weights=values.ravel(), minlength=size)
+
+
+class SaddlePattern:
+    """A constrained saddle-point Jacobian's pattern, velocities first (``n_velocity``), as its
+    blocks: every element value's slot in one data array ``[A | B]`` (``A`` the velocity rows
+    and columns, ``B`` the pressure rows' velocity columns, both CSR in the order of ``pattern``).
+    The (v, p) block, which is ``B^T`` exactly, and the (p, p) block (zero but for the pinned
+    pressures' identity, ``C = diag(pinned)``) get no slot: their values go to a last, discarded
+    slot. :meth:`matrix` gives a :class:`~tofsi.linalg.block_matrix.SaddlePointMatrix` whose
+    ``A`` and ``B`` share this pattern's index arrays (a preconditioner keeping them copies
+    nothing). The slots come from ``pattern`` (a :class:`SparsePattern` of the whole matrix,
+    made for this and let go: a second copy of the slots is not kept)."""
+
+    def __init__(self, pattern: SparsePattern, n_velocity: int, pinned: np.ndarray):
+        nnz, nv = pattern.nnz, n_velocity
+        indptr, indices = pattern.indptr, pattern.indices
+        velocity = indices[:nnz] < nv                               # (nnz,) the A and B entries
+        rank = np.concatenate([[0], np.cumsum(velocity, dtype=np.int64)])   # A | B order of the velocity entries
+        self.nnz_a, self.nnz = int(rank[indptr[nv]]), int(rank[-1])
+        counts = rank[indptr[1:]] - rank[indptr[:-1]]
+        index = np.int32 if self.nnz < np.iinfo(np.int32).max else np.int64
+        destination = np.where(velocity, rank[:-1], self.nnz).astype(index)
+        destination = np.append(destination, index(self.nnz))     # SparsePattern's dropped slot
+        del rank
+        self.a_indptr = np.concatenate([[0], np.cumsum(counts[:nv])]).astype(indptr.dtype)
+        self.b_indptr = np.concatenate([[0], np.cumsum(counts[nv:])]).astype(indptr.dtype)
+        top = int(indptr[nv])
+        self.a_indices = indices[:top][velocity[:top]]
+        self.b_indices = indices[top:][velocity[top:]]
+        del velocity
+        self.element_slot = destination[pattern.element_slot]       # (E, a b)
+        self.diagonal_slot = destination[pattern.diagonal_slot]
+        self.shape, self.n_velocity = pattern.shape, nv
+        self.pinned = np.asarray(pinned, dtype=float)
+
+    def zeros(self, dtype=float) -> np.ndarray:
+        """A zero data array ``[A | B | discarded]`` to :meth:`add` element values into."""
+        return np.zeros(self.nnz + 1, dtype=dtype)
+
+    def add(self, data: np.ndarray, elements: slice, values: np.ndarray) -> None:
+        """Add the values ``(e, a, b)`` of the elements ``elements`` (a slice) into ``data``."""
+        np.add.at(data, self.element_slot[elements].reshape(-1), values.reshape(-1))
+
+    def matrix(self, data: np.ndarray, diagonal: float = 1.0):
+        """The Jacobian of ``data`` with ``diagonal`` on the fixed velocities' rows (the pinned
+        pressures' is ``C``)."""
+        from tofsi.linalg.block_matrix import SaddlePointMatrix
+        np.add.at(data, self.diagonal_slot, diagonal)
+        nv, n = self.n_velocity, self.shape[0]
+        A = sp.csr_matrix((data[:self.nnz_a], self.a_indices, self.a_indptr), shape=(nv, nv))
+        B = sp.csr_matrix((data[self.nnz_a:self.nnz], self.b_indices, self.b_indptr), shape=(n - nv, nv))
+        return SaddlePointMatrix(A, B, self.pinned)

@@ -30,9 +30,22 @@ class DirichletOperator:
         self.is_fixed[self.fixed] = True
         self.free = np.flatnonzero(~self.is_fixed)
         self.keep_rows = ~self.is_fixed[rows][:, :, None]
-        keep = self.keep_rows & ~self.is_fixed[cols][:, None, :]      # (E, a, b): held until the slots are made
-        self.pattern = SparsePattern(rows, cols, (size, size), extra_diagonal=self.fixed, keep=keep)
+        self._pattern = None
         self._row_pattern = None
+
+    @property
+    def pattern(self) -> SparsePattern:
+        """The pattern of :meth:`matrix` (made on first use)."""
+        if self._pattern is None:
+            self._pattern = self.new_pattern()
+        return self._pattern
+
+    def new_pattern(self) -> SparsePattern:
+        """A pattern of the constrained matrices (fixed rows and columns dropped, the fixed
+        diagonal added), not kept here (for a caller that lays the slots out its own way)."""
+        keep = self.keep_rows & ~self.is_fixed[self.pattern_cols][:, None, :]   # (E, a, b): held until the slots
+        return SparsePattern(self.pattern_rows, self.pattern_cols, (self.size, self.size),
+                             extra_diagonal=self.fixed, keep=keep)
 
     def matrix(self, Ke: np.ndarray):
         """``K_bc`` from element matrices ``(E, a, b)``."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from tofsi.linalg.backends import canonical_csr
 
@@ -127,3 +128,60 @@ class _Rectangular:
             rows.append(sp.hstack(parts, format="csr") if len(parts) > 1 else parts[0])
         A = sp.vstack(rows, format="csr") if len(rows) > 1 else rows[0]
         return canonical_csr(A)
+
+
+class SaddlePointMatrix(spla.LinearOperator):
+    """A constrained saddle-point Jacobian kept as its blocks, velocities first:
+
+        J = | A   B^T |      A (n_v x n_v) and B (n_p x n_v) CSR; the (v, p) block is B^T
+            | B   C   |      exactly, C = diag(pinned): 1 on pinned pressures, else 0
+
+    (the flow's Jacobian on the iterative path: its block preconditioner keeps these very
+    ``A`` and ``B``, so the Jacobian it is built from is not copied). ``J @ v``, ``J.T @ v``
+    and :meth:`absolute_product`; :meth:`tocsr` assembles it."""
+
+    def __init__(self, A, B, pinned: np.ndarray):
+        self.A, self.B = A, B
+        self.pinned = np.asarray(pinned, dtype=float)                  # (n_p,)
+        self.n_velocity = A.shape[0]
+        n = A.shape[0] + B.shape[0]
+        super().__init__(dtype=np.result_type(A.dtype, B.dtype), shape=(n, n))
+
+    def _product(self, x: np.ndarray, transpose: bool) -> np.ndarray:
+        nv = self.n_velocity
+        v, p = x[:nv], x[nv:]
+        top = (self.A.T @ v if transpose else self.A @ v) + self.B.T @ p
+        return np.concatenate([top, self.B @ v + self.pinned * p])
+
+    def _matvec(self, x):
+        return self._product(np.ravel(x), False)
+
+    def _rmatvec(self, x):
+        return self._product(np.ravel(x), True)
+
+    def absolute_product(self, v: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """``|J| v`` (``|J|^T v``)."""
+        nv = self.n_velocity
+        top = absolute_product(self.A, v[:nv], transpose) + absolute_product(self.B, v[nv:], transpose=True)
+        return np.concatenate([top, absolute_product(self.B, v[:nv]) + np.abs(self.pinned) * v[nv:]])
+
+    def tocsr(self) -> sp.csr_matrix:
+        return sp.bmat([[self.A, self.B.T], [self.B, sp.diags(self.pinned)]], format="csr")
+
+
+def absolute_product(M, v: np.ndarray, transpose: bool = False, rows: int = 1 << 16) -> np.ndarray:
+    """``|M| v`` (``|M|^T v``) for a CSR ``M`` or a :class:`SaddlePointMatrix`, by blocks of
+    ``rows`` rows (``abs(M)``, a copy of the whole matrix, is not formed)."""
+    if isinstance(M, SaddlePointMatrix):
+        return M.absolute_product(v, transpose)
+    M = sp.csr_matrix(M)
+    out = np.zeros(M.shape[1] if transpose else M.shape[0])
+    for a in range(0, M.shape[0], rows):
+        b = min(a + rows, M.shape[0])
+        s, e = M.indptr[a], M.indptr[b]
+        block = sp.csr_matrix((np.abs(M.data[s:e]), M.indices[s:e], M.indptr[a:b + 1] - s), shape=(b - a, M.shape[1]))
+        if transpose:
+            out += block.T @ v[a:b]
+        else:
+            out[a:b] = block @ v
+    return out

@@ -69,6 +69,7 @@ import scipy.sparse.linalg as spla
 
 from tofsi.core.errors import NumericalError
 from tofsi.linalg.amg import smoothed_aggregation
+from tofsi.linalg.block_matrix import SaddlePointMatrix
 from tofsi.linalg.krylov import gmres
 
 log = logging.getLogger(__name__)
@@ -128,15 +129,18 @@ class BlockSaddlePreconditioner:
                  transpose_tol: float = TRANSPOSE_TOL, max_iter: int = 400):
         if pressure_solver not in PRESSURE_SOLVERS:
             raise ValueError(f"pressure_solver {pressure_solver!r}: allowed {PRESSURE_SOLVERS}")
-        A = sp.csr_matrix(A)
         nv = n_velocity
         self.shape, self.tol, self.max_iter = A.shape, tol, max_iter
         self.transpose_tol = transpose_tol
         self.nv = nv
         self.iterations = 0
         self.fixed_p = np.flatnonzero(np.asarray(fixed)[nv:])
-        self.A = A[:nv, :nv].tocsr()                                 # (n_v, n_v)
-        self.B = A[nv:, :nv].tocsr()                                 # (n_p, n_v); the (v, p) block is B^T
+        if isinstance(A, SaddlePointMatrix):                         # its blocks themselves, no copy
+            self.A, self.B = A.A, A.B
+        else:
+            A = sp.csr_matrix(A)
+            self.A = A[:nv, :nv].tocsr()                             # (n_v, n_v)
+            self.B = A[nv:, :nv].tocsr()                             # (n_p, n_v); the (v, p) block is B^T
         self.pinned = np.zeros(A.shape[0] - nv)                      # (n_p,) C: 1 on pinned pressures
         self.pinned[self.fixed_p] = 1.0
         self.mass = np.array(mass, dtype=float)
@@ -235,17 +239,10 @@ class BlockSaddlePreconditioner:
             return self._gmres(A.T, b, self._apply_transpose, self.transpose_tol)
         return self._gmres(A, b, self._apply, self.tol)
 
-    def matrix(self) -> spla.LinearOperator:
+    def matrix(self) -> SaddlePointMatrix:
         """``J = [[A, B^T], [B, C]]`` from the blocks held (``C`` the pinned pressures'
         identity), as an operator: the assembled matrix is not kept beside its blocks."""
-        nv = self.nv
-
-        def product(x, transpose):
-            v, p = x[:nv], x[nv:]
-            top = (self.A.T @ v if transpose else self.A @ v) + self.B.T @ p
-            return np.concatenate([top, self.B @ v + self.pinned * p])
-        return spla.LinearOperator(self.shape, matvec=lambda x: product(x, False),
-                                   rmatvec=lambda x: product(x, True), dtype=float)
+        return SaddlePointMatrix(self.A, self.B, self.pinned)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """``J^{-1} b`` by GMRES to ``tol`` relative to ``|D^{-1/2} b|`` (NumericalError otherwise)."""

@@ -32,7 +32,7 @@ import scipy.sparse as sp
 
 from tofsi.core.blocks import Continuation
 from tofsi.core.errors import InputError
-from tofsi.fem.assembly import SparsePattern, assemble_vector, element_dofs
+from tofsi.fem.assembly import SaddlePattern, SparsePattern, assemble_vector, element_dofs
 from tofsi.fem.dirichlet import DirichletOperator
 from tofsi.fem.geometry import map_points
 from tofsi.physics.interpolation import Brinkman
@@ -94,6 +94,7 @@ class Flow:
         self.kept_scale = Kept()          # the force scale of the last mesh position and density
         self.kept_basis = Kept()          # the element basis of the last configuration (keeps_basis)
         self._shape_pattern = None        # CSR pattern of F_x
+        self._saddle_pattern = None       # the Jacobian's blocks' pattern on the iterative path
 
     # ---- geometry and state -------------------------------------------------------
     def corners(self, x=None) -> np.ndarray:
@@ -228,7 +229,7 @@ class Flow:
         if self.keep_element_jacobians:
             Re, Ke = self.element_jacobians(w, x, rho, params, density)
             return self.bc.matrix(Ke), assemble_vector(self.dofs, Re, self.size)
-        pattern = self.bc.pattern
+        pattern = self.jacobian_pattern()
         data, Re = pattern.zeros(), None
         for elements, Re_c, Ke_c in self.element_jacobian_chunks(w, x, rho, params, density):
             if Re is None:
@@ -237,6 +238,17 @@ class Flow:
             pattern.add(data, elements, Ke_c)
         Re = self.kept_residuals.get(self.evaluation_key(w, x, rho, params, density), lambda: Re)
         return pattern.matrix(data, 1.0), assemble_vector(self.dofs, Re, self.size)
+
+    def jacobian_pattern(self):
+        """The pattern :meth:`jacobian` assembles on: on the iterative path the Jacobian's blocks
+        ``A``, ``B`` (:class:`~tofsi.fem.assembly.SaddlePattern`: the block preconditioner keeps
+        them without a copy, the (v, p) block is ``B^T``), else the constrained CSR matrix."""
+        if not self.linear_algebra.iterative:
+            return self.bc.pattern
+        if self._saddle_pattern is None:
+            self._saddle_pattern = SaddlePattern(self.bc.new_pattern(), self.n_velocity,
+                                                 self.bc.is_fixed[self.n_velocity:].astype(float))
+        return self._saddle_pattern
 
     def shape_elements(self, w, x=None, rho=None, params=None):
         """``(R_e (E, m), dR_e/dXe (E, m, 8))`` on the mesh moved by ``x``: the element type's

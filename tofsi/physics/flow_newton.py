@@ -26,6 +26,7 @@ import scipy.sparse as sp
 from tofsi.core.errors import NumericalError
 from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.linalg import RecyclingSolver
+from tofsi.linalg.block_matrix import absolute_product
 
 log = logging.getLogger(__name__)
 ROUND_OFF = 64 * np.finfo(float).eps        # componentwise backward error that counts as exact
@@ -81,19 +82,6 @@ def newton_solve(flow, x=None, rho=None, w0=None, params=None,
     report.converged = True
     report.wall_time_s = time.perf_counter() - t0
     return FlowSolution(w, report, J, solver)
-
-
-def absolute_product(J, v: np.ndarray, rows: int = 1 << 16) -> np.ndarray:
-    """``|J| v`` for a CSR ``J``, by blocks of ``rows`` rows (``abs(J)``, a copy of the whole
-    matrix, is not formed)."""
-    J = sp.csr_matrix(J)
-    out = np.empty(J.shape[0])
-    for a in range(0, J.shape[0], rows):
-        b = min(a + rows, J.shape[0])
-        s, e = J.indptr[a], J.indptr[b]
-        block = sp.csr_matrix((np.abs(J.data[s:e]), J.indices[s:e], J.indptr[a:b + 1] - s), shape=(b - a, J.shape[1]))
-        out[a:b] = block @ v
-    return out
 
 
 def backward_error(J, w, r) -> float:
