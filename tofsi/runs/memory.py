@@ -44,9 +44,11 @@ BYTES_PER_FACTOR_ENTRY = 22.2   # 12 stored + the factorization's working space;
 FILL = {"flow": 14.0, "flow-q1q1": 14.0, "q1-vector": 9.5}   # c in nnz(L + U) = c n log2 n, measured
                                                              # 12.6-13.9 (Taylor-Hood), 12.3-14.5 (Q1/Q1) / 9.1
 BACKEND_FACTOR = {"superlu": 1.0, "pardiso": 1.1, "petsc": 1.2}   # measured 1.08 at 16200 elements
-ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 2.35e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move on
+ITERATIVE_BYTES_PER_UNKNOWN = {"flow": 1.35e3, "q1-vector": 1.9e3}  # fitted to tofsi solve / move on
                                 # the iterative path (flow: 16 200 and 64 980 elements after issue 34's
-                                # GMRES(30), int32 slots, no kept element matrices, 3.8e3 before; 5e3-1.6e5 mesh)
+                                # GMRES(30), int32 slots, no kept element matrices, the Jacobian as its
+                                # blocks shared with the preconditioner, the AMG setup without copies;
+                                # 2.35e3 before the last two, 3.8e3 before issue 34; 5e3-1.6e5 mesh)
 COMMAND_FACTOR = {"solve": 1.0, "optimize": 1.10, "check-gradients": 1.70, "move": 1.0, "tune": 1.0,
                   "study": 1.0}  # peak over the solve model (above base): optimize measured 1.06-1.08
                                  # at 16 200 elements once a design point's state is let go before
