@@ -91,6 +91,12 @@ class LinearAlgebra:
         iterative path."""
         return precondition if self.iterative else factorize
 
+    def saddle_point_layout(self, whole, blocks):
+        """The pattern a saddle-point Jacobian is assembled on: ``whole()`` (the whole CSR
+        matrix, for its LU) on a direct backend, ``blocks()`` (its blocks ``A``, ``B``, which
+        the block preconditioner keeps without a copy) on the iterative path."""
+        return blocks() if self.iterative else whole()
+
     @contextmanager
     def blas(self):
         """Within the block NumPy's and SciPy's OpenBLAS use ``blas_threads`` threads (restored

@@ -240,11 +240,12 @@ class Flow:
         return pattern.matrix(data, 1.0), assemble_vector(self.dofs, Re, self.size)
 
     def jacobian_pattern(self):
-        """The pattern :meth:`jacobian` assembles on: on the iterative path the Jacobian's blocks
-        ``A``, ``B`` (:class:`~tofsi.fem.assembly.SaddlePattern`: the block preconditioner keeps
-        them without a copy, the (v, p) block is ``B^T``), else the constrained CSR matrix."""
-        if not self.linear_algebra.iterative:
-            return self.bc.pattern
+        """The pattern :meth:`jacobian` assembles on, as the model's linear algebra lays it out
+        (:meth:`~tofsi.linalg.LinearAlgebra.saddle_point_layout`): the constrained CSR matrix,
+        or its blocks ``A``, ``B`` (:class:`~tofsi.fem.assembly.SaddlePattern`, made once)."""
+        return self.linear_algebra.saddle_point_layout(lambda: self.bc.pattern, self._blocks_pattern)
+
+    def _blocks_pattern(self):
         if self._saddle_pattern is None:
             self._saddle_pattern = SaddlePattern(self.bc.new_pattern(), self.n_velocity,
                                                  self.bc.is_fixed[self.n_velocity:].astype(float))
