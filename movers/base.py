@@ -96,7 +96,7 @@ class MoveResult:
     blend: object = None                            # the movers.blend.Blend used, if any
     target: np.ndarray | None = None                # (2n,) the prescribed motion as applied
     problem: object = None                          # the MotionProblem moved (set by callers)
-    reverse: object = None                          # a path-dependent move's reverse pass (built by its VJP)
+    derivatives: object = None                      # a path-dependent move's stored increments (built by its JVP or VJP)
 
 
 def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
@@ -117,7 +117,7 @@ class Mover(ABC):
     from the kernel the density blend, the fixed rows, the residual and its
     true Jacobian, the residual's partial derivatives and the
     implicit-function vector-Jacobian product. A path-dependent mover
-    (increments on the updated mesh) writes :meth:`move`, :meth:`vjp` and
+    (increments on the updated mesh) writes :meth:`move`, :meth:`jvp`, :meth:`vjp` and
     :meth:`reference_matrices` instead. A mover that sets ``warm_starts``
     takes ``initial`` (a nearby displacement to start from) and ``solver`` (an
     earlier move's solver to recycle) in :meth:`move`; its result must not
@@ -252,6 +252,12 @@ class Mover(ABC):
         lam, lam_p = self.transposed_solve(problem, x, xbar, result.solver, result.blend)
         t_bar, f_bar, s_bar = self.residual_partials(problem, x, result.target, lam + lam_p, result.blend)
         return -t_bar.reshape(-1, 2), -f_bar, -s_bar
+
+    def jvp(self, problem: MotionProblem, result: MoveResult, t_dot: np.ndarray) -> np.ndarray:
+        """Tangent of a path-dependent map along a change ``t_dot`` (n, 2) of the prescribed motion,
+        stiffening and blend held: ``x_dot`` (n, 2). (A residual mover's tangent is its residual's
+        Jacobian, :meth:`residual`.)"""
+        raise NotImplementedError(f"the {self.name} mover has a residual form; use its Jacobian")
 
     # helpers ---------------------------------------------------------------
     def _solver(self, problem: MotionProblem) -> RecyclingSolver:
