@@ -40,11 +40,11 @@ linear residual mover, differentiated by :class:`movers.base.Mover` itself.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-from movers.base import MoveReport, element_apply, quality_record, transposed_solve
+from movers.base import MoveReport, element_apply, quality_record
 from movers.problem import MotionProblem
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
@@ -59,12 +59,17 @@ def system(bc, Ke: np.ndarray, dofs: np.ndarray, blend):
 
 
 def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.ndarray,
-              step: np.ndarray, solver, report: MoveReport, guess=None, blend=None) -> np.ndarray:
+              step: np.ndarray, solver, report: MoveReport, guess=None, blend=None,
+              kept: list | None = None) -> np.ndarray:
     """The change ``dx`` (2n,) of one increment from displacement ``x`` (2n,) towards
-    ``x + step``; ``guess`` starts the iterative solve."""
+    ``x + step``; ``guess`` starts the iterative solve; ``kept``: a list that receives the
+    increment's unscaled element matrices."""
     bc, dofs = problem.bc, problem.dofs
     Xe = problem.points[problem.quads] + x.reshape(-1, 2)[problem.quads]
-    Ke = element_matrices(Xe) * problem.stiffening[:, None, None]
+    K0 = element_matrices(Xe)
+    if kept is not None:
+        kept.append(K0)
+    Ke = K0 * problem.stiffening[:, None, None]
     step_p = np.zeros_like(step)
     step_p[bc.fixed] = step[bc.fixed]
     rhs = -element_apply(Ke, step_p, dofs)
@@ -79,14 +84,15 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
 
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
                    element_matrices: ElementMatrices, solver, report: MoveReport,
-                   progress=None, blend=None) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Apply ``target`` (2n,) in ``n`` increments; returns ``x_N`` and ``[x_0, ..., x_N]``."""
+                   progress=None, blend=None, kept: list | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Apply ``target`` (2n,) in ``n`` increments; returns ``x_N`` and ``[x_0, ..., x_N]``
+    (``kept``: a list that receives each increment's unscaled element matrices)."""
     x = np.zeros_like(target)
     states = [x]
     step = target / n
     dx = None
     for k in range(n):
-        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend)
+        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, kept=kept)
         x = x + dx
         states.append(x)
         report.increments += 1
@@ -95,48 +101,6 @@ def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
         if progress:
             progress(k + 1, n, record)
     return x, states
-
-
-class IncrementDerivatives:
-    """What the derivatives of one move need of its increments, built once per move: the tangent
-    (:func:`increments_jvp`, a Newton's coupling, applied once per Krylov iteration) and the reverse
-    sweep (:func:`increments_vjp`, once per adjoint iteration) are linear in their input and share it.
-
-    Per increment ``k``: the unstiffened element matrices ``K0_k (Em, 8, 8)`` of the mesh ``x_k``,
-    the change ``dx_k``, the constrained system matrix ``A_k`` of its solve, the element Jacobian
-    ``D_k = d(K0_e(Xe) dx_e)/dXe (Em, 8, 8)`` of its forces with respect to the corners (the
-    kernel's :meth:`~IncrementKernel.force_derivative`) and, on first use, a factorization of
-    ``A_k`` (``factorize``, the move's solver kind) that serves ``A_k`` and ``A_k^T``. Memory: per
-    increment a factorization of the mesh system and two ``(Em, 8, 8)`` arrays (about 3 MB at
-    80 x 40).
-    """
-
-    def __init__(self, problem: MotionProblem, states: list[np.ndarray], kernel: "IncrementKernel",
-                 blend=None, factorize=None):
-        dofs, f = problem.dofs, problem.stiffening
-        self.factorize = factorize
-        self.increments = []
-        for k in range(len(states) - 1):
-            x_k, dx = states[k], states[k + 1] - states[k]
-            Xe = problem.points[problem.quads] + x_k.reshape(-1, 2)[problem.quads]
-            K0 = kernel(Xe)
-            D = kernel.force_derivative(Xe, dx[dofs]) if k > 0 else None   # x_0 = 0 depends on nothing
-            A = system(problem.bc, K0 * f[:, None, None], dofs, blend)
-            self.increments.append((K0, dx, D, A))
-        self.solvers: list = [None] * len(self.increments)
-
-    def _factors(self, k: int):
-        if self.solvers[k] is None:
-            self.solvers[k] = self.factorize(self.increments[k][3])
-        return self.solvers[k]
-
-    def solve(self, k: int, b: np.ndarray) -> np.ndarray:
-        """``A_k^-1 b`` with increment ``k``'s own factorization (made on first use)."""
-        return self._factors(k).solve(b)
-
-    def solve_transpose(self, k: int, A, b: np.ndarray) -> np.ndarray:
-        """``A_k^-T b`` (``A``: ``A_k``, as a recycling solver is called)."""
-        return self._factors(k).solve_transpose(b)
 
 
 class IncrementKernel:
@@ -157,14 +121,63 @@ class IncrementKernel:
         return corner_derivatives(lambda Xc: np.einsum("eab,eb->ea", self.matrices(Xc), v), Xe)
 
 
-class _Increment:
-    """One increment's factorization in the interface of a recycling solver (``solve_transpose(A, b)``)."""
+class IncrementDerivatives:
+    """What the derivatives of one move need of its increments, built once per move: the tangent
+    (:func:`increments_jvp`, a Newton's coupling, applied once per Krylov iteration) and the reverse
+    sweep (:func:`increments_vjp`, once per adjoint iteration) are linear in their input and share it.
 
-    def __init__(self, derivatives: IncrementDerivatives, k: int):
-        self.derivatives, self.k = derivatives, k
+    Per increment ``k`` (``K_k = f K0(x_k)``, ``D_k = d(K0_e(Xe) dx_e)/dXe`` the shape derivative
+    of its forces, the kernel's :meth:`~IncrementKernel.force_derivative`): the change ``dx_k``,
+    the constrained system matrix ``A_k`` of its solve and, on first use, its factorization
+    (``factorize``, the move's solver kind; it serves ``A_k`` and ``A_k^T``), the assembled
+    ``P_f W K_k`` (free rows, with their fixed columns) and ``P_f W f D_k``, the element forces
+    ``K0_e dx_e (Em, 8)`` and (blended) the assembled ``K_k dx_k``. ``matrices``: the move's
+    element matrices ``K0_k`` if it kept them (else computed again). Memory: per increment a
+    factorization of the mesh system and three sparse matrices of its pattern.
+    """
 
-    def solve_transpose(self, A, b):
-        return self.derivatives.solve_transpose(self.k, A, b)
+    def __init__(self, problem: MotionProblem, states: list[np.ndarray], kernel: IncrementKernel,
+                 blend=None, factorize=None, matrices: list | None = None):
+        bc, dofs, f = problem.bc, problem.dofs, problem.stiffening
+        weight = np.ones(2 * problem.n_nodes) if blend is None else blend.weight
+        scale = f[:, None, None] * weight[dofs][:, :, None]          # rows of f_e W
+        self.factorize = factorize
+        self.increments = []
+        for k in range(len(states) - 1):
+            x_k, dx = states[k], states[k + 1] - states[k]
+            Xe = problem.points[problem.quads] + x_k.reshape(-1, 2)[problem.quads]
+            K0 = kernel(Xe) if matrices is None else matrices[k]
+            dx_e = dx[dofs]
+            WD = bc.row_matrix(scale * kernel.force_derivative(Xe, dx_e)) if k > 0 else None  # x_0 = 0
+            forces = np.einsum("eab,eb->ea", K0, dx_e)
+            Kdx = None if blend is None else assemble_vector(dofs, f[:, None] * forces, dx.size)
+            A = system(bc, K0 * f[:, None, None], dofs, blend)
+            self.increments.append(_Stored(dx, A, bc.row_matrix(scale * K0), WD, forces, Kdx))
+        self.solvers: list = [None] * len(self.increments)
+
+    def _factors(self, k: int):
+        if self.solvers[k] is None:
+            self.solvers[k] = self.factorize(self.increments[k].A)
+        return self.solvers[k]
+
+    def solve(self, k: int, b: np.ndarray) -> np.ndarray:
+        """``A_k^-1 b`` with increment ``k``'s own factorization (made on first use)."""
+        return self._factors(k).solve(b)
+
+    def solve_transpose(self, k: int, b: np.ndarray) -> np.ndarray:
+        """``A_k^-T b``."""
+        return self._factors(k).solve_transpose(b)
+
+
+class _Stored(NamedTuple):
+    """One increment's share of :class:`IncrementDerivatives`."""
+
+    dx: np.ndarray           # (2n,) its change
+    A: object                # its constrained system matrix
+    WK: object               # P_f W K_k (+ identity fixed rows, never read)
+    WD: object               # P_f W f D_k (None for the first increment)
+    forces: np.ndarray       # (Em, 8) K0_e dx_e
+    Kdx: np.ndarray | None   # (2n,) K_k dx_k (blended)
 
 
 def derivatives_of(problem: MotionProblem, result, kernel: IncrementKernel) -> IncrementDerivatives:
@@ -172,7 +185,7 @@ def derivatives_of(problem: MotionProblem, result, kernel: IncrementKernel) -> I
     ``result.derivatives``."""
     if result.derivatives is None:
         result.derivatives = IncrementDerivatives(problem, result.trajectory, kernel, result.blend,
-                                                  result.solver.factorize)
+                                                  result.solver.factorize, result.matrices)
     return result.derivatives
 
 
@@ -185,19 +198,17 @@ def increments_jvp(problem: MotionProblem, result, kernel: IncrementKernel, t_do
         x_dot_(k+1) = x_dot_k + dx_dot."""
     derivatives = derivatives_of(problem, result, kernel)
     blend, bc = result.blend, problem.bc
-    dofs, f = problem.dofs, problem.stiffening
     n = len(derivatives.increments)
     step = np.asarray(t_dot, dtype=float).reshape(-1) / n
     step_p = np.where(bc.is_fixed, step, 0.0)
+    moved = bool(np.any(step_p))
     x_dot = np.zeros_like(step)
-    for k in range(n):
-        K0, _, D, _ = derivatives.increments[k]
-        forces = np.einsum("eab,eb->ea", K0, step_p[dofs])
-        if D is not None:
-            forces += np.einsum("eaj,ej->ea", D, x_dot[dofs])
-        rhs = -assemble_vector(dofs, f[:, None] * forces, step.size)
-        if blend is not None:
-            rhs = blend.residual(rhs, step, 0.0)       # W rhs + S_c d_dot
+    for k, inc in enumerate(derivatives.increments):
+        rhs = np.zeros_like(step) if blend is None else blend.diag * step       # S_c d_dot
+        if moved:
+            rhs -= inc.WK @ step_p
+        if inc.WD is not None:
+            rhs -= inc.WD @ x_dot
         rhs[bc.fixed] = step[bc.fixed]
         dx = derivatives.solve(k, rhs)
         dx[bc.fixed] = step[bc.fixed]
@@ -208,10 +219,11 @@ def increments_jvp(problem: MotionProblem, result, kernel: IncrementKernel, t_do
 def increments_vjp(problem: MotionProblem, result, kernel: IncrementKernel, xbar: np.ndarray):
     """Reverse sweep of the move ``result`` (its trajectory, target, solver and blend):
     ``(target_bar (2n,), stiffening_bar (Em,), blend_bar (n,))``. Its :class:`IncrementDerivatives`
-    are built on the first call (of this or :func:`increments_jvp`) and kept for the later ones."""
+    are built on the first call (of this or :func:`increments_jvp`) and kept for the later ones.
+    Per increment, the transposed solve of :func:`movers.base.transposed_solve` with its own
+    factorization: ``A_k^T lam_f = xbar_f``, ``lam_p = xbar_p - (K^T W lam_f)_p``."""
     derivatives = derivatives_of(problem, result, kernel)
-    blend = result.blend
-    dofs, f = problem.dofs, problem.stiffening
+    blend, bc, dofs = result.blend, problem.bc, problem.dofs
     n = len(derivatives.increments)
     step = result.target / n
     xbar = np.array(xbar, dtype=float).reshape(-1)
@@ -219,17 +231,16 @@ def increments_vjp(problem: MotionProblem, result, kernel: IncrementKernel, xbar
     f_bar = np.zeros(len(problem.quads))
     s_bar = np.zeros(problem.n_nodes)
     for k in range(n - 1, -1, -1):
-        K0, dx, D, A = derivatives.increments[k]
-        Ke = K0 * f[:, None, None]
-        lam, lam_p = transposed_solve(problem, Ke, xbar, _Increment(derivatives, k), blend, A)
-        step_bar += lam_p
-        lam_w = lam if blend is None else blend.weighted(lam)
+        inc = derivatives.increments[k]
+        lam = derivatives.solve_transpose(k, bc.homogenize(xbar))
+        lam[bc.fixed] = 0.0
+        step_bar[bc.fixed] += xbar[bc.fixed] - (inc.WK.T @ lam)[bc.fixed]
         if blend is not None:                       # the increment's D = W K dx + S_c (dx - d)
-            t_blend, s_part = blend.partials(lam, dx, step, element_apply(Ke, dx, dofs))
+            t_blend, s_part = blend.partials(lam, inc.dx, step, inc.Kdx)
             step_bar -= t_blend
             s_bar -= s_part
-        lam_e, dx_e = lam_w[dofs], dx[dofs]
-        f_bar -= np.einsum("ea,eab,eb->e", lam_e, K0, dx_e)
-        if D is not None:                           # d/dx_k [(W lam) . f K0(x_k) dx]
-            xbar = xbar - assemble_vector(dofs, f[:, None] * np.einsum("eaj,ea->ej", D, lam_e), xbar.size)
+        lam_w = lam if blend is None else blend.weighted(lam)
+        f_bar -= np.einsum("ea,ea->e", lam_w[dofs], inc.forces)
+        if inc.WD is not None:                      # d/dx_k [(W lam) . f K0(x_k) dx]
+            xbar = xbar - inc.WD.T @ lam
     return step_bar / n, f_bar, s_bar

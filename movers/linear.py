@@ -63,13 +63,14 @@ class LinearElasticMover(Mover):
         report = MoveReport(mover=self.name)
         solver = self._solver(problem)
         blend = self.blend(problem)
+        kept = []
         try:
             x, states = run_increments(problem, target, self.params.increments,
-                                       self.element_matrices(), solver, report, progress, blend)
+                                       self.element_matrices(), solver, report, progress, blend, kept)
         except NumericalError as err:
             self._fail(report, problem, None, str(err), t0)
         return self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
-                            target=target)
+                            target=target, matrices=kept)
 
     def jvp(self, problem: MotionProblem, result: MoveResult, t_dot: np.ndarray) -> np.ndarray:
         """Tangent sweep through the increments (with one: a residual mover's, see ``residual``)."""

@@ -105,13 +105,14 @@ class SpringMover(Mover):
             codes = self.choose_diagonals(problem, target, solver, report, blend)
         else:
             codes = np.full(len(problem.quads), DIAGONALS.index(choice))
+        kept = []
         try:
             x, states = run_increments(problem, target, self.params.increments,
-                                       self.element_matrices(codes), solver, report, progress, blend)
+                                       self.element_matrices(codes), solver, report, progress, blend, kept)
         except NumericalError as err:
             self._fail(report, problem, None, str(err), t0)
         result = self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
-                              target=target)
+                              target=target, matrices=kept)
         result.cell_data["diagonal"] = codes
         return result
 
