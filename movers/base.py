@@ -96,7 +96,7 @@ class MoveResult:
     blend: object = None                            # the movers.blend.Blend used, if any
     target: np.ndarray | None = None                # (2n,) the prescribed motion as applied
     problem: object = None                          # the MotionProblem moved (set by callers)
-    matrices: list | None = None                    # a move in increments: each one's unscaled element matrices
+    record: object = None                           # a move in increments: what its derivatives reuse
     derivatives: object = None                      # a path-dependent move's stored increments (built by its JVP or VJP)
 
 
@@ -312,7 +312,7 @@ class Mover(ABC):
     @staticmethod
     def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float,
                 solver: RecyclingSolver | None = None, trajectory=None, blend=None,
-                target=None, matrices=None) -> MoveResult:
+                target=None, record=None) -> MoveResult:
         report.wall_time_s = time.perf_counter() - t0
         if solver is not None:
             report.factorizations = solver.factorizations
@@ -330,4 +330,4 @@ class Mover(ABC):
                                  state=x.reshape(-1, 2))
         report.converged = True
         return MoveResult(x.reshape(-1, 2), report, trajectory=trajectory, solver=solver, blend=blend,
-                          target=target, matrices=matrices)
+                          target=target, record=record)

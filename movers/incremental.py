@@ -40,6 +40,7 @@ linear residual mover, differentiated by :class:`movers.base.Mover` itself.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -58,17 +59,25 @@ def system(bc, Ke: np.ndarray, dofs: np.ndarray, blend):
     return bc.matrix(Ke) if blend is None else blend.matrix(bc, Ke, dofs)
 
 
+@dataclass
+class MoveRecord:
+    """What a move in increments keeps for its derivatives: each increment's unscaled element
+    matrices and, by increment, the exact factorization of its system where the move made one
+    (a recycling solver factorizes every few increments)."""
+
+    matrices: list = field(default_factory=list)
+    factors: dict = field(default_factory=dict)
+
+
 def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.ndarray,
               step: np.ndarray, solver, report: MoveReport, guess=None, blend=None,
-              kept: list | None = None) -> np.ndarray:
+              record: MoveRecord | None = None) -> np.ndarray:
     """The change ``dx`` (2n,) of one increment from displacement ``x`` (2n,) towards
-    ``x + step``; ``guess`` starts the iterative solve; ``kept``: a list that receives the
-    increment's unscaled element matrices."""
+    ``x + step``; ``guess`` starts the iterative solve; ``record`` receives the increment's
+    element matrices and factorization."""
     bc, dofs = problem.bc, problem.dofs
     Xe = problem.points[problem.quads] + x.reshape(-1, 2)[problem.quads]
     K0 = element_matrices(Xe)
-    if kept is not None:
-        kept.append(K0)
     Ke = K0 * problem.stiffening[:, None, None]
     step_p = np.zeros_like(step)
     step_p[bc.fixed] = step[bc.fixed]
@@ -77,29 +86,34 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
         rhs = blend.residual(rhs, step, 0.0)      # W (-K_fp d_p) + S_c d
     rhs[bc.fixed] = step[bc.fixed]
     report.linear_solves += 1
+    factorizations = solver.factorizations
     dx = solver.solve(system(bc, Ke, dofs, blend), rhs, guess)
     dx[bc.fixed] = step[bc.fixed]              # exact, whatever the solver's tolerance
+    if record is not None:
+        if solver.factorizations > factorizations and solver.solver.exact:
+            record.factors[len(record.matrices)] = solver.solver        # made at this system
+        record.matrices.append(K0)
     return dx
 
 
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
                    element_matrices: ElementMatrices, solver, report: MoveReport,
-                   progress=None, blend=None, kept: list | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+                   progress=None, blend=None, record: MoveRecord | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
     """Apply ``target`` (2n,) in ``n`` increments; returns ``x_N`` and ``[x_0, ..., x_N]``
-    (``kept``: a list that receives each increment's unscaled element matrices)."""
+    (``record`` receives what the derivatives reuse)."""
     x = np.zeros_like(target)
     states = [x]
     step = target / n
     dx = None
     for k in range(n):
-        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, kept=kept)
+        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, record=record)
         x = x + dx
         states.append(x)
         report.increments += 1
-        record = quality_record(problem, x.reshape(-1, 2), (k + 1) / n)
-        report.quality.append(record)
+        quality = quality_record(problem, x.reshape(-1, 2), (k + 1) / n)
+        report.quality.append(quality)
         if progress:
-            progress(k + 1, n, record)
+            progress(k + 1, n, quality)
     return x, states
 
 
@@ -131,13 +145,13 @@ class IncrementDerivatives:
     the constrained system matrix ``A_k`` of its solve and, on first use, its factorization
     (``factorize``, the move's solver kind; it serves ``A_k`` and ``A_k^T``), the assembled
     ``P_f W K_k`` (free rows, with their fixed columns) and ``P_f W f D_k``, the element forces
-    ``K0_e dx_e (Em, 8)`` and (blended) the assembled ``K_k dx_k``. ``matrices``: the move's
-    element matrices ``K0_k`` if it kept them (else computed again). Memory: per increment a
-    factorization of the mesh system and three sparse matrices of its pattern.
+    ``K0_e dx_e (Em, 8)`` and (blended) the assembled ``K_k dx_k``. ``record``: what the move
+    kept (its element matrices and factorizations; else they are made again). Memory: per
+    increment a factorization of the mesh system and three sparse matrices of its pattern.
     """
 
     def __init__(self, problem: MotionProblem, states: list[np.ndarray], kernel: IncrementKernel,
-                 blend=None, factorize=None, matrices: list | None = None):
+                 blend=None, factorize=None, record: MoveRecord | None = None):
         bc, dofs, f = problem.bc, problem.dofs, problem.stiffening
         weight = np.ones(2 * problem.n_nodes) if blend is None else blend.weight
         scale = f[:, None, None] * weight[dofs][:, :, None]          # rows of f_e W
@@ -146,14 +160,14 @@ class IncrementDerivatives:
         for k in range(len(states) - 1):
             x_k, dx = states[k], states[k + 1] - states[k]
             Xe = problem.points[problem.quads] + x_k.reshape(-1, 2)[problem.quads]
-            K0 = kernel(Xe) if matrices is None else matrices[k]
+            K0 = kernel(Xe) if record is None else record.matrices[k]
             dx_e = dx[dofs]
             WD = bc.row_matrix(scale * kernel.force_derivative(Xe, dx_e)) if k > 0 else None  # x_0 = 0
             forces = np.einsum("eab,eb->ea", K0, dx_e)
             Kdx = None if blend is None else assemble_vector(dofs, f[:, None] * forces, dx.size)
             A = system(bc, K0 * f[:, None, None], dofs, blend)
             self.increments.append(_Stored(dx, A, bc.row_matrix(scale * K0), WD, forces, Kdx))
-        self.solvers: list = [None] * len(self.increments)
+        self.solvers: list = [None if record is None else record.factors.get(k) for k in range(len(self.increments))]
 
     def _factors(self, k: int):
         if self.solvers[k] is None:
@@ -185,7 +199,7 @@ def derivatives_of(problem: MotionProblem, result, kernel: IncrementKernel) -> I
     ``result.derivatives``."""
     if result.derivatives is None:
         result.derivatives = IncrementDerivatives(problem, result.trajectory, kernel, result.blend,
-                                                  result.solver.factorize, result.matrices)
+                                                  result.solver.factorize, result.record)
     return result.derivatives
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
-from movers.incremental import IncrementKernel, increments_jvp, increments_vjp, run_increments
+from movers.incremental import IncrementKernel, MoveRecord, increments_jvp, increments_vjp, run_increments
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError
 from tofsi.fem.elasticity import element_stiffness, lame
@@ -63,14 +63,14 @@ class LinearElasticMover(Mover):
         report = MoveReport(mover=self.name)
         solver = self._solver(problem)
         blend = self.blend(problem)
-        kept = []
+        record = MoveRecord()
         try:
             x, states = run_increments(problem, target, self.params.increments,
-                                       self.element_matrices(), solver, report, progress, blend, kept)
+                                       self.element_matrices(), solver, report, progress, blend, record)
         except NumericalError as err:
             self._fail(report, problem, None, str(err), t0)
         return self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
-                            target=target, matrices=kept)
+                            target=target, record=record)
 
     def jvp(self, problem: MotionProblem, result: MoveResult, t_dot: np.ndarray) -> np.ndarray:
         """Tangent sweep through the increments (with one: a residual mover's, see ``residual``)."""

@@ -24,7 +24,7 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
-from movers.incremental import IncrementKernel, increment, increments_jvp, increments_vjp, run_increments
+from movers.incremental import IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, quad_force_derivative, quad_stiffness
 from tofsi.mesh import quality
 from tofsi.core.config import option
@@ -105,14 +105,14 @@ class SpringMover(Mover):
             codes = self.choose_diagonals(problem, target, solver, report, blend)
         else:
             codes = np.full(len(problem.quads), DIAGONALS.index(choice))
-        kept = []
+        record = MoveRecord()
         try:
             x, states = run_increments(problem, target, self.params.increments,
-                                       self.element_matrices(codes), solver, report, progress, blend, kept)
+                                       self.element_matrices(codes), solver, report, progress, blend, record)
         except NumericalError as err:
             self._fail(report, problem, None, str(err), t0)
         result = self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
-                              target=target, matrices=kept)
+                              target=target, record=record)
         result.cell_data["diagonal"] = codes
         return result
 
