@@ -142,12 +142,13 @@ class IncrementDerivatives:
 
     Per increment ``k`` (``K_k = f K0(x_k)``, ``D_k = d(K0_e(Xe) dx_e)/dXe`` the shape derivative
     of its forces, the kernel's :meth:`~IncrementKernel.force_derivative`): the change ``dx_k``,
-    the constrained system matrix ``A_k`` of its solve and, on first use, its factorization
-    (``factorize``, the move's solver kind; it serves ``A_k`` and ``A_k^T``), the assembled
-    ``P_f W K_k`` (free rows, with their fixed columns) and ``P_f W f D_k``, the element forces
-    ``K0_e dx_e (Em, 8)`` and (blended) the assembled ``K_k dx_k``. ``record``: what the move
-    kept (its element matrices and factorizations; else they are made again). Memory: per
-    increment a factorization of the mesh system and three sparse matrices of its pattern.
+    a factorization of its constrained system ``A_k`` (the move's own where it made one, else
+    made on first use with ``factorize``, the move's solver kind; it serves ``A_k`` and
+    ``A_k^T``), the assembled ``P_f W f D_k``, the element forces ``K0_e dx_e (Em, 8)``, (blended)
+    the assembled ``K_k dx_k``, and ``W K_k`` of the quads with a fixed dof (the prescribed
+    motion's share). ``record``: what the move kept (its element matrices and factorizations;
+    else they are made again). Memory: per increment a factorization of the mesh system and
+    one sparse matrix of its pattern.
     """
 
     def __init__(self, problem: MotionProblem, states: list[np.ndarray], kernel: IncrementKernel,
@@ -155,8 +156,10 @@ class IncrementDerivatives:
         bc, dofs, f = problem.bc, problem.dofs, problem.stiffening
         weight = np.ones(2 * problem.n_nodes) if blend is None else blend.weight
         scale = f[:, None, None] * weight[dofs][:, :, None]          # rows of f_e W
+        self.edge = np.flatnonzero(bc.is_fixed[dofs].any(axis=1))   # quads with a fixed dof
+        self.dofs_edge = dofs[self.edge]
         self.factorize = factorize
-        self.increments = []
+        self.increments, self.systems = [], []
         for k in range(len(states) - 1):
             x_k, dx = states[k], states[k + 1] - states[k]
             Xe = problem.points[problem.quads] + x_k.reshape(-1, 2)[problem.quads]
@@ -165,13 +168,15 @@ class IncrementDerivatives:
             WD = bc.row_matrix(scale * kernel.force_derivative(Xe, dx_e)) if k > 0 else None  # x_0 = 0
             forces = np.einsum("eab,eb->ea", K0, dx_e)
             Kdx = None if blend is None else assemble_vector(dofs, f[:, None] * forces, dx.size)
-            A = system(bc, K0 * f[:, None, None], dofs, blend)
-            self.increments.append(_Stored(dx, A, bc.row_matrix(scale * K0), WD, forces, Kdx))
+            self.systems.append(system(bc, K0 * f[:, None, None], dofs, blend))
+            self.increments.append(_Stored(dx, (scale * K0)[self.edge] if self.edge.size else None,
+                                           WD, forces, Kdx))
         self.solvers: list = [None if record is None else record.factors.get(k) for k in range(len(self.increments))]
 
     def _factors(self, k: int):
         if self.solvers[k] is None:
-            self.solvers[k] = self.factorize(self.increments[k].A)
+            self.solvers[k] = self.factorize(self.systems[k])
+        self.systems[k] = None                  # the factors are what is kept
         return self.solvers[k]
 
     def solve(self, k: int, b: np.ndarray) -> np.ndarray:
@@ -182,13 +187,20 @@ class IncrementDerivatives:
         """``A_k^-T b``."""
         return self._factors(k).solve_transpose(b)
 
+    def edge_apply(self, k: int, v: np.ndarray, size: int, transpose: bool = False) -> np.ndarray:
+        """``P_f W K_k v`` (or ``K_k^T W v``) from the quads with a fixed dof only: exact where ``v``
+        (``W K_k v``) or the entries read (``K_k^T W v``, at fixed dofs) touch no other quad."""
+        WK = self.increments[k].WK_edge
+        if WK is None:
+            return np.zeros(size)
+        return element_apply(WK, v, self.dofs_edge, transpose)
+
 
 class _Stored(NamedTuple):
     """One increment's share of :class:`IncrementDerivatives`."""
 
     dx: np.ndarray           # (2n,) its change
-    A: object                # its constrained system matrix
-    WK: object               # P_f W K_k (+ identity fixed rows, never read)
+    WK_edge: np.ndarray      # (quads with a fixed dof, 8, 8) rows of W f K0
     WD: object               # P_f W f D_k (None for the first increment)
     forces: np.ndarray       # (Em, 8) K0_e dx_e
     Kdx: np.ndarray | None   # (2n,) K_k dx_k (blended)
@@ -220,7 +232,7 @@ def increments_jvp(problem: MotionProblem, result, kernel: IncrementKernel, t_do
     for k, inc in enumerate(derivatives.increments):
         rhs = np.zeros_like(step) if blend is None else blend.diag * step       # S_c d_dot
         if moved:
-            rhs -= inc.WK @ step_p
+            rhs -= derivatives.edge_apply(k, step_p, step.size)
         if inc.WD is not None:
             rhs -= inc.WD @ x_dot
         rhs[bc.fixed] = step[bc.fixed]
@@ -248,7 +260,7 @@ def increments_vjp(problem: MotionProblem, result, kernel: IncrementKernel, xbar
         inc = derivatives.increments[k]
         lam = derivatives.solve_transpose(k, bc.homogenize(xbar))
         lam[bc.fixed] = 0.0
-        step_bar[bc.fixed] += xbar[bc.fixed] - (inc.WK.T @ lam)[bc.fixed]
+        step_bar[bc.fixed] += xbar[bc.fixed] - derivatives.edge_apply(k, lam, lam.size, transpose=True)[bc.fixed]
         if blend is not None:                       # the increment's D = W K dx + S_c (dx - d)
             t_blend, s_part = blend.partials(lam, inc.dx, step, inc.Kdx)
             step_bar -= t_blend
