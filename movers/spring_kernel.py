@@ -122,7 +122,7 @@ def triangle_force_derivative(P: np.ndarray, v: np.ndarray, torsion_scale: float
     R = angle_gradients(d, L2)               # row r: grad theta_r
     Hv = np.zeros((T, 3, 6))                 # row r: H_r v
     dlogC = np.zeros((T, 3, 6))              # row r: grad C_r / C_r
-    for e, ((p, q), (ip, iq)) in enumerate(zip(edges, slots)):
+    for e, ((p, q), (ip, iq)) in enumerate(zip(edges, slots, strict=True)):
         hu = np.einsum("tij,tj->ti", h[:, e], v[:, iq] - v[:, ip])             # [[h, -h], [-h, h]] v = (-hu, hu)
         for r, sign in ((p, -1.0), (q, 1.0)):        # e is d_ij of the angle at p, -d_ik of the angle at q
             Hv[:, r, iq] += sign * hu
@@ -156,11 +156,11 @@ def _on_triangles(Xe: np.ndarray, diagonal: np.ndarray, triangle_fn, v: np.ndarr
             parts += [(quads, weight[quads], tri) for tri in TRIANGLES[name]]
     P = np.concatenate([Xe[quads][:, tri, :] for quads, _, tri in parts])
     dofs = [np.ravel([(2 * a, 2 * a + 1) for a in tri]) for _, _, tri in parts]
-    vt = None if v is None else np.concatenate([v[quads][:, idx] for (quads, _, _), idx in zip(parts, dofs)])
+    vt = None if v is None else np.concatenate([v[quads][:, idx] for (quads, _, _), idx in zip(parts, dofs, strict=True)])
     Kt = triangle_fn(P, vt).reshape(len(P), 36)
     K = np.zeros((E, 64), dtype=Kt.dtype)
     start = 0
-    for (quads, weight, _), idx in zip(parts, dofs):
+    for (quads, weight, _), idx in zip(parts, dofs, strict=True):
         stop = start + quads.size
         K[quads[:, None], (8 * idx[:, None] + idx[None, :]).ravel()] += weight[:, None] * Kt[start:stop]
         start = stop
