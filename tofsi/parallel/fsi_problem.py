@@ -131,6 +131,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
             if not np.isfinite(change):
                 raise NumericalError("distributed two-way solve: non-finite mesh motion", {"history": history})
             if change <= self.tol:
+                self.model.unfolded(State(rho, {"x": x}))            # a folded mesh is a failure, as serially
                 self.u, self.x = u, x
                 return {"w": w, "u": u, "x": x, "f": f, "lin_u": lin_u, "lin_x": lin_x,
                         "reports": {"w": report, "coupled": {"sweeps": it + 1, "history": history}}}
