@@ -97,7 +97,8 @@ def design_problem(scene):
         yield Problem(scene)
         return
     from tofsi.parallel.flow_problem import leading
-    with leading(scene) as problem:
+    from tofsi.parallel.fsi_problem import problem_class
+    with leading(scene, problem_class(scene)) as problem:
         yield problem
 
 

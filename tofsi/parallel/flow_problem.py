@@ -235,20 +235,11 @@ def serve(problem: DistributedFlowProblem, mpi) -> None:
             log.info("rank %d: the evaluation failed as on every rank (%s)", mpi.rank, err)
 
 
-def problem_class(scene):
-    """The distributed problem of ``scene``: the flow alone, or with a structure
-    (:class:`~tofsi.parallel.fsi_problem.DistributedFsiProblem`)."""
-    if scene.effects.structure == "none":
-        return DistributedFlowProblem
-    from tofsi.parallel.fsi_problem import DistributedFsiProblem
-    return DistributedFsiProblem
-
-
 @contextmanager
-def leading(scene):
-    """The distributed problem of ``scene`` as rank 0 drives it (a :class:`Leader`); on the
-    other ranks :func:`serve` runs until rank 0 leaves the block, and the block gets None."""
-    kind = problem_class(scene)
+def leading(scene, kind=DistributedFlowProblem):
+    """The distributed problem of ``scene`` (of class ``kind``: :class:`DistributedFlowProblem`
+    or a subclass) as rank 0 drives it (a :class:`Leader`); on the other ranks :func:`serve`
+    runs until rank 0 leaves the block, and the block gets None."""
     kind.refuse(scene)                                    # before petsc4py is needed
     from tofsi.linalg.petsc import unavailable            # lazily: the one optional need
     missing = unavailable()

@@ -69,6 +69,11 @@ def check(scene) -> None:
                          "distributed FSI problem")
 
 
+def problem_class(scene):
+    """The distributed problem of ``scene``: the flow alone, or with a structure."""
+    return DistributedFlowProblem if scene.effects.structure == "none" else DistributedFsiProblem
+
+
 class DistributedFsiProblem(DistributedFlowProblem):
     """The compliance design problem of an FSI ``scene``, its flow by slabs on the ranks of ``comm``."""
 
@@ -197,6 +202,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
                                          {"relative_residual": residual})
             if parts.get("rho_x") is not None:
                 total = total + parts["rho_x"]
+        eng.release_transpose()
         lam_u = parts["lam_u"]
         internal = material.density_vectors(u, rho, st.simp(params))              # (E, 8), replicated
         total = (total + np.einsum("ea,ea->e", internal, lam_u[st.dofs])
