@@ -36,7 +36,7 @@ import numpy as np
 from tofsi.core.errors import InputError, NumericalError
 from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.linalg.iterative import FLOOR
-from tofsi.parallel.partition import SlabPartition
+from tofsi.parallel.partition import SlabPartition, row_counts
 from tofsi.physics.flow_preconditioner import element_areas
 from tofsi.physics.flow_view import FlowView
 from tofsi.physics.fluid_kernel import fluid_element
@@ -123,21 +123,9 @@ class DistributedFlow:
         self.transposed_iterations = 0
 
     def _row_counts(self):
-        """Non-zeros of each owned row in the diagonal and off-diagonal blocks ``((m,), (m,))``,
-        from the elements touching owned dofs (exact preallocation: no slack to squeeze out)."""
+        """Exact preallocation from the elements touching owned dofs (:func:`row_counts`)."""
         lo, hi = self.part.owned
-        dofs = self.part.new_of_old[self.flow.dofs[self.part.halo_elements]]              # (E_h, 22)
-        owned = (dofs >= lo) & (dofs < hi)
-        k = owned.sum(axis=1)                                                            # owned rows per element
-        rows = np.repeat(dofs[owned], 22)
-        cols = np.repeat(dofs, k, axis=0).reshape(-1)                                    # each owned row: 22 cols
-        pairs = np.unique((rows - lo) * self.flow.size + cols)
-        del rows, cols
-        row, col = pairs // self.flow.size, pairs % self.flow.size
-        inside = (col >= lo) & (col < hi)
-        m = hi - lo
-        return (np.bincount(row[inside], minlength=m).astype(np.int32),
-                np.bincount(row[~inside], minlength=m).astype(np.int32))
+        return row_counts(self.part.new_of_old[self.flow.dofs[self.part.halo_elements]], lo, hi, self.flow.size)
 
     # ---- state --------------------------------------------------------------------
     def set_state(self, w_old: np.ndarray) -> None:

@@ -15,13 +15,15 @@ What is distributed and what is replicated:
   transposed partials in ``w``, ``x`` and ``rho``, the flow's shape derivative ``F_x^T lam``
   and friction derivative -- each rank on its own elements with the serial kernels
   (:class:`~tofsi.parallel.slab_flow.SlabCoupling`), summed over ranks;
-* replicated on every rank (``O(n)`` Q1 vectors, the serial blocks themselves): the
-  structure ``u`` (``K_s(rho) u = f``, the serial block's factorization) and the mesh motion
-  ``x`` (the serial mover block: Newton, its transposed solve and partials).
+* the structure's ``K_s(rho)``: assembled by the same slabs, factorized across the ranks by
+  MUMPS once per design (:class:`~tofsi.parallel.slab_structure.SlabStructure`);
+* replicated on every rank: the vectors ``u``, ``x``, ``f`` (``O(n)``, the same bits on
+  every rank) and the mesh motion (the serial mover block: Newton, its transposed solve
+  and partials).
 
 The two-way cycle ``x -> w -> f -> u -> x~ = D^-1(u)`` is solved partitioned: the fixed
 point ``x = x~(x)`` by IQN-ILS (Degroote et al. 2009: the next ``x`` from the least-squares
-fit of the residual differences of all earlier iterations), to ``|x~ - x| <= tol |x~|``.
+fit of the last 8 residual differences), to ``|x~ - x| <= tol |x~|``.
 Its adjoint runs the sweeps of :class:`adjoint.Adjoint` in reverse (``x``, then ``u``, then
 ``w``), the backward edge ``y = F_x^T lam_w + S_x^T lam_u`` into the mover solved by GMRES on
 the replicated ``(2n,)`` fixed point ``y = T(y)`` (one sweep per iteration), then
@@ -45,6 +47,7 @@ from tofsi.optimization.problem import mesh_quality
 from tofsi.optimization.protocol import Evaluation
 from tofsi.parallel.flow_problem import DistributedFlowProblem
 from tofsi.parallel.slab_flow import SlabCoupling
+from tofsi.parallel.slab_structure import SlabStructure
 
 log = logging.getLogger(__name__)
 HISTORY = 8          # IQN-ILS: the residual differences kept
@@ -85,6 +88,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
             raise InputError("mover", self.scene.mover.name, "a mover with a residual form (not one solved in "
                              "increments) for the distributed two-way problem")
         self.coupling = SlabCoupling(self.engine, model.structure)
+        self.structure = SlabStructure(model.structure, self.engine)
         self.u: np.ndarray | None = None               # the last converged structure and mesh motion
         self.x: np.ndarray | None = None
         self.tol = min(self.scene.coupled.tol, 1e-10)
@@ -106,19 +110,19 @@ class DistributedFsiProblem(DistributedFlowProblem):
         self.warm = True
         return self.coupling.whole(self.engine.w), report
 
-    def _structure(self, w, X, rho, params, lin):
-        """The load and ``u = K_s^-1 f`` with the structure's linearization ``lin`` (its LU, kept)."""
+    def _structure(self, w, X, rho, params):
+        """The load and ``u = K_s^-1 f`` (the structure by slabs, its MUMPS factors kept)."""
         f = self.coupling.load(w, X, rho, params)
-        return f, lin.solve(self.model.structure.bc.homogenize(f))
+        return f, self.structure.solve(f)
 
     def solve(self, rho, params, system) -> dict:
-        """The coupled state at ``rho``: ``{"w", "u", "x", "f", "lin_u", "lin_x", "reports"}``
+        """The coupled state at ``rho``: ``{"w", "u", "x", "f", "lin_x", "reports"}``
         (``w`` whole-length with the slab's entries; ``x``, ``lin_x`` None one-way)."""
-        lin_u = system.by_name["u"].linearize({"u": np.zeros(self.model.structure.size)}, rho, params)
+        self.structure.factorize(rho, self.model.structure.simp(params))
         if "x" not in system.names:
             w, report = self._flow(None, rho, params, True)
-            f, u = self._structure(w, None, rho, params, lin_u)
-            return {"w": w, "u": u, "x": None, "f": f, "lin_u": lin_u, "lin_x": None, "reports": {"w": report}}
+            f, u = self._structure(w, None, rho, params)
+            return {"w": w, "u": u, "x": None, "f": f, "lin_x": None, "reports": {"w": report}}
         mover = system.by_name["x"]
         x = np.zeros(mover.size) if self.x is None else np.array(self.x, dtype=float)
         lin_x, dR, dX, history = None, [], [], []
@@ -126,7 +130,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
         for it in range(self.max_iter):
             X = x.reshape(-1, 2)
             w, report = self._flow(X, rho, params, it == 0)
-            f, u = self._structure(w, X, rho, params, lin_u)
+            f, u = self._structure(w, X, rho, params)
             x_new, lin_x, _ = mover.solve({"u": u, "x": x}, rho, params, guess=x.reshape(-1, 2), previous=lin_x)
             r = x_new - x
             change = float(np.linalg.norm(r)) / max(float(np.linalg.norm(x_new)), 1e-300)
@@ -138,7 +142,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
             if change <= self.tol:
                 self.model.unfolded(State(rho, {"x": x}))            # a folded mesh is a failure, as serially
                 self.u, self.x = u, x
-                return {"w": w, "u": u, "x": x, "f": f, "lin_u": lin_u, "lin_x": lin_x,
+                return {"w": w, "u": u, "x": x, "f": f, "lin_x": lin_x,
                         "reports": {"w": report, "coupled": {"sweeps": it + 1, "history": history}}}
             if previous is not None:                                    # IQN-ILS
                 dR.append(r - previous[0])
@@ -159,7 +163,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
         cp, eng, st = self.coupling, self.engine, self.model.structure
         w, u, f = s["w"], s["u"], s["f"]
         X = None if s["x"] is None else s["x"].reshape(-1, 2)
-        lin_u, lin_x = s["lin_u"], s["lin_x"]
+        lin_x = s["lin_x"]
         g_w = cp.load_fluid_transpose(w, X, rho, params, u)                       # distributed
         g_x = None if X is None else cp.load_shape_transpose(w, X, rho, params, u)
         total = cp.load_density(w, X, rho, params, u)                           # g_rho
@@ -174,7 +178,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
                 out["lam_x"] = lin_x.solve_transpose(-(g_x + y))
                 bars, out["rho_x"] = lin_x.transpose_partials(out["lam_x"])
                 u_bar = f + bars["u"]
-            lam_u = st.bc.homogenize(lin_u.solve_transpose(-u_bar))
+            lam_u = self.structure.solve_transpose(-u_bar)                        # zero on the clamped dofs
             out["lam_u"] = lam_u
             b = cp.load_fluid_transpose(w, X, rho, params, lam_u)
             b.aypx(-1.0, g_w)                                                    # g_w - f_w^T lam_u
