@@ -14,6 +14,7 @@
 * :class:`~tofsi.parallel.slab_flow.SlabCoupling` -- the fluid load and the coupling partials on a
   rank's slab with the serial kernels (:class:`~tofsi.parallel.slab_flow.SlabFlow`: a Flow restricted
   to the slab's elements), summed over ranks;
+* :class:`~tofsi.parallel.slab_structure.SlabStructure` -- the small-strain stiffness by slabs, MUMPS;
 * :class:`~tofsi.parallel.fsi_problem.DistributedFsiProblem` -- compliance FSI (small strain, one-way
-  or two-way with a residual mover), the flow by slabs, the structure and mover replicated.
+  or two-way with a residual mover), the flow and the structure by slabs, the mover replicated.
 """
