@@ -89,15 +89,14 @@ class DistributedFsiProblem(DistributedFlowProblem):
                              "increments) for the distributed two-way problem")
         self.coupling = SlabCoupling(self.engine, model.structure)
         self.structure = SlabStructure(model.structure, self.engine)
-        self.u: np.ndarray | None = None               # the last converged structure and mesh motion
-        self.x: np.ndarray | None = None
+        self.x: np.ndarray | None = None               # the last converged mesh motion (the next start)
         self.tol = min(self.scene.coupled.tol, 1e-10)
         self.max_iter = self.scene.coupled.max_iter
 
     def set_guess(self, state: State | None) -> None:
         super().set_guess(state)
         if state is not None:
-            self.u, self.x = state.fields.get("u"), state.fields.get("x")
+            self.x = state.fields.get("x")
 
     # ---- the forward solve ---------------------------------------------------------------------
     def _flow(self, X, rho, params, first: bool) -> tuple[np.ndarray, dict]:
@@ -141,7 +140,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
                 raise NumericalError("distributed two-way solve: non-finite mesh motion", {"history": history})
             if change <= self.tol:
                 self.model.unfolded(State(rho, {"x": x}))            # a folded mesh is a failure, as serially
-                self.u, self.x = u, x
+                self.x = x
                 return {"w": w, "u": u, "x": x, "f": f, "lin_x": lin_x,
                         "reports": {"w": report, "coupled": {"sweeps": it + 1, "history": history}}}
             if previous is not None:                                    # IQN-ILS
