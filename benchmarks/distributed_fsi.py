@@ -3,7 +3,7 @@
 Run in the PETSc environment (``docs/parallel.md``), as root with the Open MPI flag:
 
     mpiexec --allow-run-as-root -n 2 /work/venv-petsc/bin/python -m benchmarks.distributed_fsi \
-        --elements-x 160 [--amg hypre]
+        --elements-x 160 [--h 0.00884] [--amg hypre]
 
 ``examples/scenes/beam_in_channel_optimization_fsi.toml`` at ``--elements-x`` elements along
 the channel (half as many across), its last continuation stage (two-way, beta 16, the Yeoh
@@ -28,6 +28,7 @@ SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "beam_in_c
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--elements-x", type=int, default=80)
+    parser.add_argument("--h", type=float, default=None, help="element size [m] (default: 2 / elements-x)")
     parser.add_argument("--amg", default="hypre", choices=["gamg", "hypre"])
     args = parser.parse_args()
     import numpy as np
@@ -37,7 +38,7 @@ def main() -> None:
     from tofsi.coupling.coupled import continuation
     from tofsi.parallel.fsi_problem import DistributedFsiProblem
     t0, c0 = time.perf_counter(), time.process_time()
-    h = 2.0 / args.elements_x
+    h = 2.0 / args.elements_x if args.h is None else args.h
     scene = tofsi.load_scene(SCENE, [f"mesh.h_min={h!r}", f"mesh.h_max={h!r}", f"solver.flow_amg={args.amg}"])
     problem = DistributedFsiProblem(scene)
     problem.set_stage(continuation(scene, scene.design.n_stages - 1))
