@@ -32,6 +32,10 @@ figures (issue 32's research resolution: 160 x 80 and 320 x 160):
 
     python benchmarks/optimize.py [--elements-x 180] [--iterations 6] [--backend superlu]
                                   [--blas-threads 1] [--floor] [--large | --schedule]
+                                  [--set KEY=VALUE ...]
+
+``--set`` overrides scene values as ``tofsi``'s option does (e.g. ``--large --set
+mover.name=spring``: the large scene with the spring analogy in its 10 increments).
 """
 
 from __future__ import annotations
@@ -111,6 +115,8 @@ def main() -> None:
                         help="the large-deformation scene: its one-way stages, then --iterations two-way ones")
     parser.add_argument("--schedule", action="store_true",
                         help="the large-deformation scene's whole schedule, per stage: time and peak memory")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scene value (as tofsi's --set), e.g. --set mover.name=spring")
     parser.add_argument("--output", type=Path, default=Path("results/benchmarks"))
     args = parser.parse_args()
 
@@ -120,7 +126,7 @@ def main() -> None:
 
     h = 2.0 / args.elements_x
     sets = [f"mesh.h_min={h}", f"mesh.h_max={h}", f"solver.linear_solver={args.backend}",
-            f"solver.blas_threads={args.blas_threads}"]
+            f"solver.blas_threads={args.blas_threads}", *args.set]
     if args.schedule:
         return schedule(tofsi.load_scene(LARGE_SCENE, sets), args, write_json)
     if args.large:
@@ -246,7 +252,9 @@ def large(scene, args, write_json) -> None:
     if floor:
         row["floor"] = floor.report(first=0)            # the warm two-way iterations
     print(json.dumps(row, indent=2))
-    write_json(args.output / f"optimize_large_{args.elements_x}_{args.backend}.json", row)
+    tag = "".join(f"_{s.replace('=', '-')}" for s in args.set)
+    row["set"] = args.set
+    write_json(args.output / f"optimize_large_{args.elements_x}_{args.backend}{tag}.json", row)
 
 
 def high_water_mark_gb(reset: bool = False) -> float:

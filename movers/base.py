@@ -96,7 +96,8 @@ class MoveResult:
     blend: object = None                            # the movers.blend.Blend used, if any
     target: np.ndarray | None = None                # (2n,) the prescribed motion as applied
     problem: object = None                          # the MotionProblem moved (set by callers)
-    reverse: object = None                          # a path-dependent move's reverse pass (built by its VJP)
+    record: object = None                           # a move in increments: what its derivatives reuse
+    derivatives: object = None                      # a path-dependent move's stored increments (built by its JVP or VJP)
 
 
 def quality_record(problem: MotionProblem, x: np.ndarray, load: float) -> dict:
@@ -117,7 +118,7 @@ class Mover(ABC):
     from the kernel the density blend, the fixed rows, the residual and its
     true Jacobian, the residual's partial derivatives and the
     implicit-function vector-Jacobian product. A path-dependent mover
-    (increments on the updated mesh) writes :meth:`move`, :meth:`vjp` and
+    (increments on the updated mesh) writes :meth:`move`, :meth:`jvp`, :meth:`vjp` and
     :meth:`reference_matrices` instead. A mover that sets ``warm_starts``
     takes ``initial`` (a nearby displacement to start from) and ``solver`` (an
     earlier move's solver to recycle) in :meth:`move`; its result must not
@@ -253,6 +254,12 @@ class Mover(ABC):
         t_bar, f_bar, s_bar = self.residual_partials(problem, x, result.target, lam + lam_p, result.blend)
         return -t_bar.reshape(-1, 2), -f_bar, -s_bar
 
+    def jvp(self, problem: MotionProblem, result: MoveResult, t_dot: np.ndarray) -> np.ndarray:
+        """Tangent of a path-dependent map along a change ``t_dot`` (n, 2) of the prescribed motion,
+        stiffening and blend held: ``x_dot`` (n, 2). (A residual mover's tangent is its residual's
+        Jacobian, :meth:`residual`.)"""
+        raise NotImplementedError(f"the {self.name} mover has a residual form; use its Jacobian")
+
     # helpers ---------------------------------------------------------------
     def _solver(self, problem: MotionProblem) -> RecyclingSolver:
         """A solver for the mover's sequence of tangent/stiffness systems."""
@@ -305,7 +312,7 @@ class Mover(ABC):
     @staticmethod
     def _finish(report: MoveReport, problem: MotionProblem, x: np.ndarray, t0: float,
                 solver: RecyclingSolver | None = None, trajectory=None, blend=None,
-                target=None) -> MoveResult:
+                target=None, record=None) -> MoveResult:
         report.wall_time_s = time.perf_counter() - t0
         if solver is not None:
             report.factorizations = solver.factorizations
@@ -323,4 +330,4 @@ class Mover(ABC):
                                  state=x.reshape(-1, 2))
         report.converged = True
         return MoveResult(x.reshape(-1, 2), report, trajectory=trajectory, solver=solver, blend=blend,
-                          target=target)
+                          target=target, record=record)

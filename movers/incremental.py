@@ -1,4 +1,4 @@
-"""Incremental linear mesh motion on the updated mesh, and its reverse sweep.
+"""Incremental linear mesh motion on the updated mesh, its tangent and its reverse sweep.
 
 Shared by the spring mover and the incremental linear-elastic mover: the
 prescribed motion is applied in ``N`` equal increments ``d = u / N``;
@@ -22,21 +22,30 @@ adjoint of ``x_N``, for ``k = N-1 .. 0``
     sbar_i -= lam_i . (c_i (dx_i - d_i) - (K dx)_i),
     xbar -= d/dx_k [(W lam_f) . K(x_k) dx]        (shape derivative, complex step),
 
-and ``ubar = dbar / N``. The sweep is linear in ``xbar``; what it needs of
-each increment (its matrices and the complex-step shape derivative of its
-forces) is built once per move (:class:`ReversePass`), so the adjoint of a
-partitioned coupling, which sweeps once per iteration, pays the complex
-steps once. One increment on the reference mesh is a linear residual mover,
-differentiated by :class:`movers.base.Mover` itself.
+and ``ubar = dbar / N``. Tangent sweep (Jacobian-vector product of ``u -> x``,
+``f`` and ``s`` held): for ``k = 0 .. N-1`` from ``x_dot_0 = 0``, ``d_dot = u_dot / N``,
+
+    (W K_ff + S_c) dx_dot_f = [W (-K_fp d_dot_p - d/dx_k[K(x_k) dx] x_dot_k) + S_c d_dot]_f,
+    dx_dot_p = d_dot_p,   x_dot_(k+1) = x_dot_k + dx_dot.
+
+Both sweeps are linear in their input; what they need of each increment (its
+matrices, a factorization of its system and the shape derivative of its
+forces) is built once per move (:class:`IncrementDerivatives`), so a Newton
+that applies the tangent once per Krylov iteration, or the adjoint of a
+partitioned coupling that sweeps once per iteration, pays it once. The move
+is then the explicit map ``x = M(u)``, the residual ``x - M(u)`` of a coupled
+Newton (:mod:`tofsi.fields.motion`). One increment on the reference mesh is a
+linear residual mover, differentiated by :class:`movers.base.Mover` itself.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from dataclasses import dataclass, field
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-from movers.base import MoveReport, element_apply, quality_record, transposed_solve
+from movers.base import MoveReport, element_apply, quality_record
 from movers.problem import MotionProblem
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
@@ -50,13 +59,26 @@ def system(bc, Ke: np.ndarray, dofs: np.ndarray, blend):
     return bc.matrix(Ke) if blend is None else blend.matrix(bc, Ke, dofs)
 
 
+@dataclass
+class MoveRecord:
+    """What a move in increments keeps for its derivatives: each increment's unscaled element
+    matrices and, by increment, the exact factorization of its system where the move made one
+    (a recycling solver factorizes every few increments)."""
+
+    matrices: list = field(default_factory=list)
+    factors: dict = field(default_factory=dict)
+
+
 def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.ndarray,
-              step: np.ndarray, solver, report: MoveReport, guess=None, blend=None) -> np.ndarray:
+              step: np.ndarray, solver, report: MoveReport, guess=None, blend=None,
+              record: MoveRecord | None = None) -> np.ndarray:
     """The change ``dx`` (2n,) of one increment from displacement ``x`` (2n,) towards
-    ``x + step``; ``guess`` starts the iterative solve."""
+    ``x + step``; ``guess`` starts the iterative solve; ``record`` receives the increment's
+    element matrices and factorization."""
     bc, dofs = problem.bc, problem.dofs
     Xe = problem.points[problem.quads] + x.reshape(-1, 2)[problem.quads]
-    Ke = element_matrices(Xe) * problem.stiffening[:, None, None]
+    K0 = element_matrices(Xe)
+    Ke = K0 * problem.stiffening[:, None, None]
     step_p = np.zeros_like(step)
     step_p[bc.fixed] = step[bc.fixed]
     rhs = -element_apply(Ke, step_p, dofs)
@@ -64,104 +86,187 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
         rhs = blend.residual(rhs, step, 0.0)      # W (-K_fp d_p) + S_c d
     rhs[bc.fixed] = step[bc.fixed]
     report.linear_solves += 1
+    factorizations = solver.factorizations
     dx = solver.solve(system(bc, Ke, dofs, blend), rhs, guess)
     dx[bc.fixed] = step[bc.fixed]              # exact, whatever the solver's tolerance
+    if record is not None:
+        if solver.factorizations > factorizations and solver.solver.exact:
+            record.factors[len(record.matrices)] = solver.solver        # made at this system
+        record.matrices.append(K0)
     return dx
 
 
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
                    element_matrices: ElementMatrices, solver, report: MoveReport,
-                   progress=None, blend=None) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Apply ``target`` (2n,) in ``n`` increments; returns ``x_N`` and ``[x_0, ..., x_N]``."""
+                   progress=None, blend=None, record: MoveRecord | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Apply ``target`` (2n,) in ``n`` increments; returns ``x_N`` and ``[x_0, ..., x_N]``
+    (``record`` receives what the derivatives reuse)."""
     x = np.zeros_like(target)
     states = [x]
     step = target / n
     dx = None
     for k in range(n):
-        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend)
+        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, record=record)
         x = x + dx
         states.append(x)
         report.increments += 1
-        record = quality_record(problem, x.reshape(-1, 2), (k + 1) / n)
-        report.quality.append(record)
+        quality = quality_record(problem, x.reshape(-1, 2), (k + 1) / n)
+        report.quality.append(quality)
         if progress:
-            progress(k + 1, n, record)
+            progress(k + 1, n, quality)
     return x, states
 
 
-class ReversePass:
-    """What the reverse sweep needs of every increment of one move, built once (the sweep is linear
-    in ``xbar``, and an adjoint of a partitioned cycle sweeps it once per iteration).
+class IncrementKernel:
+    """A mover's element matrices of the current mesh, ``Xe (Em, 4, 2) -> K0 (Em, 8, 8)``
+    (unscaled, complex-safe), and the shape derivative of their forces
+    ``d(K0(Xe) v_e)/dXe (Em, 8, 8)``: ``force_derivative`` where the mover gives it in closed
+    form, else by complex step (eight evaluations of the matrices)."""
 
-    Per increment ``k``: the unstiffened element matrices ``K0_k (Em, 8, 8)`` of the mesh ``x_k``,
-    the change ``dx_k``, the constrained system matrix ``A_k`` of its solve, the element Jacobian
-    ``D_k = d(K0_e(Xe) dx_e)/dXe (Em, 8, 8)`` of its forces with respect to the corners (complex
-    step, eight evaluations: what each sweep spent before, now once per move) and, on first use,
-    a factorization of ``A_k`` (``factorize``, the move's solver kind): the move's recycled solver
-    refactorized every second increment of each sweep. Memory: per increment a factorization of
-    the mesh system and two ``(Em, 8, 8)`` arrays (about 10 MB at 80 x 40).
+    def __init__(self, matrices: ElementMatrices, force_derivative=None):
+        self.matrices, self.closed_form = matrices, force_derivative
+
+    def __call__(self, Xe: np.ndarray) -> np.ndarray:
+        return self.matrices(Xe)
+
+    def force_derivative(self, Xe: np.ndarray, v: np.ndarray) -> np.ndarray:
+        if self.closed_form is not None:
+            return self.closed_form(Xe, v)
+        return corner_derivatives(lambda Xc: np.einsum("eab,eb->ea", self.matrices(Xc), v), Xe)
+
+
+class IncrementDerivatives:
+    """What the derivatives of one move need of its increments, built once per move: the tangent
+    (:func:`increments_jvp`, a Newton's coupling, applied once per Krylov iteration) and the reverse
+    sweep (:func:`increments_vjp`, once per adjoint iteration) are linear in their input and share it.
+
+    Per increment ``k`` (``K_k = f K0(x_k)``, ``D_k = d(K0_e(Xe) dx_e)/dXe`` the shape derivative
+    of its forces, the kernel's :meth:`~IncrementKernel.force_derivative`): the change ``dx_k``,
+    a factorization of its constrained system ``A_k`` (the move's own where it made one, else
+    made on first use with ``factorize``, the move's solver kind; it serves ``A_k`` and
+    ``A_k^T``), the assembled ``P_f W f D_k``, the element forces ``K0_e dx_e (Em, 8)``, (blended)
+    the assembled ``K_k dx_k``, and ``W K_k`` of the quads with a fixed dof (the prescribed
+    motion's share). ``record``: what the move kept (its element matrices and factorizations;
+    else they are made again). Memory: per increment a factorization of the mesh system and
+    one sparse matrix of its pattern.
     """
 
-    def __init__(self, problem: MotionProblem, states: list[np.ndarray], element_matrices: ElementMatrices,
-                 blend=None, factorize=None):
-        dofs, f = problem.dofs, problem.stiffening
+    def __init__(self, problem: MotionProblem, states: list[np.ndarray], kernel: IncrementKernel,
+                 blend=None, factorize=None, record: MoveRecord | None = None):
+        bc, dofs, f = problem.bc, problem.dofs, problem.stiffening
+        weight = np.ones(2 * problem.n_nodes) if blend is None else blend.weight
+        scale = f[:, None, None] * weight[dofs][:, :, None]          # rows of f_e W
+        self.edge = np.flatnonzero(bc.is_fixed[dofs].any(axis=1))   # quads with a fixed dof
+        self.dofs_edge = dofs[self.edge]
         self.factorize = factorize
-        self.increments = []
+        self.increments, self.systems = [], []
         for k in range(len(states) - 1):
             x_k, dx = states[k], states[k + 1] - states[k]
             Xe = problem.points[problem.quads] + x_k.reshape(-1, 2)[problem.quads]
-            K0 = element_matrices(Xe)
+            K0 = kernel(Xe) if record is None else record.matrices[k]
             dx_e = dx[dofs]
-            D = (corner_derivatives(lambda Xc, dx_e=dx_e: np.einsum("eab,eb->ea", element_matrices(Xc), dx_e), Xe)
-                 if k > 0 else None)                # x_0 = 0 does not depend on anything
-            A = system(problem.bc, K0 * f[:, None, None], dofs, blend)
-            self.increments.append((K0, dx, D, A))
-        self.solvers: list = [None] * len(self.increments)
+            WD = bc.row_matrix(scale * kernel.force_derivative(Xe, dx_e)) if k > 0 else None  # x_0 = 0
+            forces = np.einsum("eab,eb->ea", K0, dx_e)
+            Kdx = None if blend is None else assemble_vector(dofs, f[:, None] * forces, dx.size)
+            self.systems.append(system(bc, K0 * f[:, None, None], dofs, blend))
+            self.increments.append(_Stored(dx, (scale * K0)[self.edge] if self.edge.size else None,
+                                           WD, forces, Kdx))
+        self.solvers: list = [None if record is None else record.factors.get(k) for k in range(len(self.increments))]
 
-    def solve_transpose(self, k: int, A, b: np.ndarray) -> np.ndarray:
-        """``A_k^-T b`` with increment ``k``'s own factorization (made on first use)."""
+    def _factors(self, k: int):
         if self.solvers[k] is None:
-            self.solvers[k] = self.factorize(A)
-        return self.solvers[k].solve_transpose(b)
+            self.solvers[k] = self.factorize(self.systems[k])
+        self.systems[k] = None                  # the factors are what is kept
+        return self.solvers[k]
+
+    def solve(self, k: int, b: np.ndarray) -> np.ndarray:
+        """``A_k^-1 b`` with increment ``k``'s own factorization (made on first use)."""
+        return self._factors(k).solve(b)
+
+    def solve_transpose(self, k: int, b: np.ndarray) -> np.ndarray:
+        """``A_k^-T b``."""
+        return self._factors(k).solve_transpose(b)
+
+    def edge_apply(self, k: int, v: np.ndarray, size: int, transpose: bool = False) -> np.ndarray:
+        """``P_f W K_k v`` (or ``K_k^T W v``) from the quads with a fixed dof only: exact where ``v``
+        (``W K_k v``) or the entries read (``K_k^T W v``, at fixed dofs) touch no other quad."""
+        WK = self.increments[k].WK_edge
+        if WK is None:
+            return np.zeros(size)
+        return element_apply(WK, v, self.dofs_edge, transpose)
 
 
-class _Increment:
-    """One increment's factorization in the interface of a recycling solver (``solve_transpose(A, b)``)."""
+class _Stored(NamedTuple):
+    """One increment's share of :class:`IncrementDerivatives`."""
 
-    def __init__(self, reverse: ReversePass, k: int):
-        self.reverse, self.k = reverse, k
+    dx: np.ndarray           # (2n,) its change
+    WK_edge: np.ndarray      # (quads with a fixed dof, 8, 8) rows of W f K0
+    WD: object               # P_f W f D_k (None for the first increment)
+    forces: np.ndarray       # (Em, 8) K0_e dx_e
+    Kdx: np.ndarray | None   # (2n,) K_k dx_k (blended)
 
-    def solve_transpose(self, A, b):
-        return self.reverse.solve_transpose(self.k, A, b)
+
+def derivatives_of(problem: MotionProblem, result, kernel: IncrementKernel) -> IncrementDerivatives:
+    """The :class:`IncrementDerivatives` of the move ``result``, built on first use and kept on
+    ``result.derivatives``."""
+    if result.derivatives is None:
+        result.derivatives = IncrementDerivatives(problem, result.trajectory, kernel, result.blend,
+                                                  result.solver.factorize, result.record)
+    return result.derivatives
 
 
-def increments_vjp(problem: MotionProblem, result, element_matrices: ElementMatrices, xbar: np.ndarray):
+def increments_jvp(problem: MotionProblem, result, kernel: IncrementKernel, t_dot: np.ndarray) -> np.ndarray:
+    """Tangent of the move ``result`` (its trajectory, target, solver and blend) along a change
+    ``t_dot`` (2n,) of its target, the stiffening and the blend held: ``x_dot`` (2n,). For
+    ``k = 0 .. N-1``, from ``x_dot_0 = 0`` and ``d_dot = t_dot / N``, each increment's own system
+
+        A_k dx_dot = [W (-K_k d_dot_p - f D_k x_dot_k) + S_c d_dot]_f,  dx_dot_p = d_dot_p,
+        x_dot_(k+1) = x_dot_k + dx_dot."""
+    derivatives = derivatives_of(problem, result, kernel)
+    blend, bc = result.blend, problem.bc
+    n = len(derivatives.increments)
+    step = np.asarray(t_dot, dtype=float).reshape(-1) / n
+    step_p = np.where(bc.is_fixed, step, 0.0)
+    moved = bool(np.any(step_p))
+    x_dot = np.zeros_like(step)
+    for k, inc in enumerate(derivatives.increments):
+        rhs = np.zeros_like(step) if blend is None else blend.diag * step       # S_c d_dot
+        if moved:
+            rhs -= derivatives.edge_apply(k, step_p, step.size)
+        if inc.WD is not None:
+            rhs -= inc.WD @ x_dot
+        rhs[bc.fixed] = step[bc.fixed]
+        dx = derivatives.solve(k, rhs)
+        dx[bc.fixed] = step[bc.fixed]
+        x_dot = x_dot + dx
+    return x_dot
+
+
+def increments_vjp(problem: MotionProblem, result, kernel: IncrementKernel, xbar: np.ndarray):
     """Reverse sweep of the move ``result`` (its trajectory, target, solver and blend):
-    ``(target_bar (2n,), stiffening_bar (Em,), blend_bar (n,))``. Its :class:`ReversePass` is
-    built on the first call and kept on ``result.reverse`` for the later ones."""
-    if result.reverse is None:
-        result.reverse = ReversePass(problem, result.trajectory, element_matrices, result.blend,
-                                     result.solver.factorize)
-    blend = result.blend
-    dofs, f = problem.dofs, problem.stiffening
-    n = len(result.reverse.increments)
+    ``(target_bar (2n,), stiffening_bar (Em,), blend_bar (n,))``. Its :class:`IncrementDerivatives`
+    are built on the first call (of this or :func:`increments_jvp`) and kept for the later ones.
+    Per increment, the transposed solve of :func:`movers.base.transposed_solve` with its own
+    factorization: ``A_k^T lam_f = xbar_f``, ``lam_p = xbar_p - (K^T W lam_f)_p``."""
+    derivatives = derivatives_of(problem, result, kernel)
+    blend, bc, dofs = result.blend, problem.bc, problem.dofs
+    n = len(derivatives.increments)
     step = result.target / n
     xbar = np.array(xbar, dtype=float).reshape(-1)
     step_bar = np.zeros_like(xbar)
     f_bar = np.zeros(len(problem.quads))
     s_bar = np.zeros(problem.n_nodes)
     for k in range(n - 1, -1, -1):
-        K0, dx, D, A = result.reverse.increments[k]
-        Ke = K0 * f[:, None, None]
-        lam, lam_p = transposed_solve(problem, Ke, xbar, _Increment(result.reverse, k), blend, A)
-        step_bar += lam_p
-        lam_w = lam if blend is None else blend.weighted(lam)
+        inc = derivatives.increments[k]
+        lam = derivatives.solve_transpose(k, bc.homogenize(xbar))
+        lam[bc.fixed] = 0.0
+        step_bar[bc.fixed] += xbar[bc.fixed] - derivatives.edge_apply(k, lam, lam.size, transpose=True)[bc.fixed]
         if blend is not None:                       # the increment's D = W K dx + S_c (dx - d)
-            t_blend, s_part = blend.partials(lam, dx, step, element_apply(Ke, dx, dofs))
+            t_blend, s_part = blend.partials(lam, inc.dx, step, inc.Kdx)
             step_bar -= t_blend
             s_bar -= s_part
-        lam_e, dx_e = lam_w[dofs], dx[dofs]
-        f_bar -= np.einsum("ea,eab,eb->e", lam_e, K0, dx_e)
-        if D is not None:                           # d/dx_k [(W lam) . f K0(x_k) dx]
-            xbar = xbar - assemble_vector(dofs, f[:, None] * np.einsum("eaj,ea->ej", D, lam_e), xbar.size)
+        lam_w = lam if blend is None else blend.weighted(lam)
+        f_bar -= np.einsum("ea,ea->e", lam_w[dofs], inc.forces)
+        if inc.WD is not None:                      # d/dx_k [(W lam) . f K0(x_k) dx]
+            xbar = xbar - inc.WD.T @ lam
     return step_bar / n, f_bar, s_bar

@@ -16,7 +16,7 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
-from movers.incremental import increments_vjp, run_increments
+from movers.incremental import IncrementKernel, MoveRecord, increments_jvp, increments_vjp, run_increments
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError
 from tofsi.fem.elasticity import element_stiffness, lame
@@ -39,11 +39,12 @@ class LinearElasticMover(Mover):
     name = "linear"
     Params = LinearParams
 
-    def element_matrices(self):
-        """Unscaled element stiffness of the current corners (complex-safe)."""
+    def element_matrices(self) -> IncrementKernel:
+        """Unscaled element stiffness of the current corners (complex-safe; the shape derivative
+        of its forces by complex step)."""
         lam, mu = lame(1.0, self.params.poisson_ratio)
         chi = self.params.chi
-        return lambda Xe: element_stiffness(Xe, lam, mu, chi=chi)
+        return IncrementKernel(lambda Xe: element_stiffness(Xe, lam, mu, chi=chi))
 
     @property
     def path_dependent(self) -> bool:
@@ -62,13 +63,20 @@ class LinearElasticMover(Mover):
         report = MoveReport(mover=self.name)
         solver = self._solver(problem)
         blend = self.blend(problem)
+        record = MoveRecord()
         try:
             x, states = run_increments(problem, target, self.params.increments,
-                                       self.element_matrices(), solver, report, progress, blend)
+                                       self.element_matrices(), solver, report, progress, blend, record)
         except NumericalError as err:
             self._fail(report, problem, None, str(err), t0)
         return self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
-                            target=target)
+                            target=target, record=record)
+
+    def jvp(self, problem: MotionProblem, result: MoveResult, t_dot: np.ndarray) -> np.ndarray:
+        """Tangent sweep through the increments (with one: a residual mover's, see ``residual``)."""
+        if not self.path_dependent:
+            return super().jvp(problem, result, t_dot)
+        return increments_jvp(problem, result, self.element_matrices(), t_dot).reshape(-1, 2)
 
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
         """Reverse sweep through the increments (with one: the adjoint of ``K x = 0, x_p = u_p``)."""

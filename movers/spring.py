@@ -24,8 +24,8 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
-from movers.incremental import increment, increments_vjp, run_increments
-from movers.spring_kernel import DIAGONALS, quad_stiffness
+from movers.incremental import IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp, run_increments
+from movers.spring_kernel import DIAGONALS, quad_force_derivative, quad_stiffness
 from tofsi.mesh import quality
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError
@@ -50,10 +50,12 @@ class SpringMover(Mover):
     name = "spring"
     Params = SpringParams
 
-    def element_matrices(self, codes: np.ndarray):
-        """Unscaled quad matrices for the diagonal codes (complex-safe)."""
+    def element_matrices(self, codes: np.ndarray) -> IncrementKernel:
+        """Unscaled quad matrices for the diagonal codes (complex-safe) and their forces' shape
+        derivative (closed form)."""
         tsc = self.params.torsion_scale
-        return lambda Xe: quad_stiffness(Xe, codes, tsc)
+        return IncrementKernel(lambda Xe: quad_stiffness(Xe, codes, tsc),
+                               lambda Xe, v: quad_force_derivative(Xe, v, codes, tsc))
 
     @property
     def path_dependent(self) -> bool:
@@ -103,15 +105,21 @@ class SpringMover(Mover):
             codes = self.choose_diagonals(problem, target, solver, report, blend)
         else:
             codes = np.full(len(problem.quads), DIAGONALS.index(choice))
+        record = MoveRecord()
         try:
             x, states = run_increments(problem, target, self.params.increments,
-                                       self.element_matrices(codes), solver, report, progress, blend)
+                                       self.element_matrices(codes), solver, report, progress, blend, record)
         except NumericalError as err:
             self._fail(report, problem, None, str(err), t0)
         result = self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
-                              target=target)
+                              target=target, record=record)
         result.cell_data["diagonal"] = codes
         return result
+
+    def jvp(self, problem: MotionProblem, result: MoveResult, t_dot: np.ndarray) -> np.ndarray:
+        """Tangent sweep through the increments (the diagonal choice is held fixed)."""
+        kernel = self.element_matrices(result.cell_data["diagonal"])
+        return increments_jvp(problem, result, kernel, t_dot).reshape(-1, 2)
 
     def vjp(self, problem: MotionProblem, result: MoveResult, xbar: np.ndarray):
         """Reverse sweep through the increments (the diagonal choice is held fixed)."""

@@ -21,6 +21,24 @@ and rows ``j``, ``k`` follow by cyclic permutation. The triangle matrix is
 
 A quad is split along diagonal 1-3 (triangles 012, 023), 2-4 (013, 123), or
 both (the mean of the two); its 8x8 matrix is the sum of its triangles'.
+
+Shape derivative of the forces ``f = K(P) v`` for a fixed ``v`` (what the
+derivatives of a motion in increments on the updated mesh need,
+``D = df/dP`` (6, 6) per triangle, row a force dof, column a coordinate):
+per edge ``d = P_q - P_p`` with ``delta = v_q - v_p`` the lineal force on ``q``
+is ``g = (d . delta) d / (2 L^3)`` (minus it on ``p``), so
+
+    dg/dd = (d delta^T + (d . delta) I - 3 (d . delta) d d^T / L^2) / (2 L^3);
+
+the torsional forces ``sum_r C_r w_r R_r`` (``w_r = R_r . v``, ``R_r`` the
+gradient of the angle ``theta_r``) give
+
+    D_T = sum_r C_r w_r H_r + w_r R_r (grad C_r)^T + C_r R_r (H_r v)^T,
+
+``H_r`` the Hessian of ``theta_i = phi(P_k - P_i) - phi(P_j - P_i)``,
+``phi(d)`` the polar angle, ``hess phi = [[2 d_x d_y, d_y^2 - d_x^2],
+[d_y^2 - d_x^2, -2 d_x d_y]] / L^4``, and
+``grad C_r = C_r (grad L_ij^2 / L_ij^2 + grad L_ik^2 / L_ik^2 - 2 grad(2A) / 2A)``.
 """
 
 from __future__ import annotations
@@ -32,64 +50,133 @@ TRIANGLES = {"1-3": ((0, 1, 2), (0, 2, 3)), "2-4": ((0, 1, 3), (1, 2, 3))}
 
 
 def triangle_stiffness(P: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
-    """Spring stiffness ``(T, 6, 6)`` of triangles with vertices ``P`` ``(T, 3, 2)``."""
+    """Spring stiffness ``(T, 6, 6)`` of triangles with vertices ``P`` ``(T, 3, 2)`` (complex-safe).
+
+    Every term is an outer product, so ``K = M^T M`` with the rows of ``M`` ``(T, 6, 6)``
+    ``sqrt(1 / (2 L^3)) [-d, d]`` on each edge's ends (``d`` the edge vector) and
+    ``sqrt(TSC C_r) R_r``: one batched product instead of many small strided sums.
+    """
     T = P.shape[0]
-    K = np.zeros((T, 6, 6), dtype=P.dtype)
-    # lineal springs on the three edges
-    for p, q in ((0, 1), (1, 2), (2, 0)):
-        d = P[:, q] - P[:, p]
-        L = np.sqrt(np.einsum("ti,ti->t", d, d))
-        nn = np.einsum("ti,tj->tij", d, d) / L[:, None, None] ** 3     # (n n^T) / L
-        blk = 0.5 * nn
+    M = np.zeros((T, 6, 6), dtype=P.dtype)
+    d = P[:, [1, 2, 0]] - P[:, [0, 1, 2]]                       # edge e = (e, e + 1)
+    L2 = np.einsum("tei,tei->te", d, d)
+    lineal = np.sqrt(0.5 / L2**1.5)[..., None] * d
+    for e, (p, q) in enumerate(((0, 1), (1, 2), (2, 0))):
+        M[:, e, 2 * p:2 * p + 2] = -lineal[:, e]
+        M[:, e, 2 * q:2 * q + 2] = lineal[:, e]
+    if torsion_scale != 0.0:
+        x, y = P[..., 0], P[..., 1]
+        area2 = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
+        C = np.stack([L2[:, 0] * L2[:, 2], L2[:, 1] * L2[:, 0], L2[:, 2] * L2[:, 1]], axis=1) / (area2**2)[:, None]
+        M[:, 3:] = np.sqrt(torsion_scale * C)[..., None] * angle_gradients(d, L2)
+    return np.matmul(M.transpose(0, 2, 1), M)
+
+
+def angle_gradients(d: np.ndarray, L2: np.ndarray) -> np.ndarray:
+    """Rows ``R_r = grad theta_r`` ``(T, 3, 6)`` of a triangle's angles from its edge vectors
+    ``d`` ``(T, 3, 2)`` (edge ``e = (e, e + 1)``) and their squared lengths ``L2``: the edge is
+    ``d_ij`` of the angle at its first end (``-phi(d)``) and ``d_ik`` reversed of the angle at its
+    second (``+phi(-d)``, whose gradient in ``d`` is ``grad phi(d) = (-d_y, d_x) / L^2``)."""
+    grad = np.stack([-d[..., 1], d[..., 0]], axis=-1) / L2[..., None]
+    R = np.zeros(d.shape[:1] + (3, 6), dtype=d.dtype)
+    for e, (p, q) in enumerate(((0, 1), (1, 2), (2, 0))):
         ip, iq = slice(2 * p, 2 * p + 2), slice(2 * q, 2 * q + 2)
-        K[:, ip, ip] += blk
-        K[:, iq, iq] += blk
-        K[:, ip, iq] -= blk
-        K[:, iq, ip] -= blk
+        R[:, p, iq] -= grad[:, e]
+        R[:, p, ip] += grad[:, e]
+        R[:, q, iq] += grad[:, e]
+        R[:, q, ip] -= grad[:, e]
+    return R
+
+
+def triangle_force_derivative(P: np.ndarray, v: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
+    """``d(K(P) v)/dP`` ``(T, 6, 6)`` of triangles ``P`` ``(T, 3, 2)`` for vertex motions ``v``
+    ``(T, 6)`` held fixed (real ``P``; module docstring). Each edge ``e = (p, q)``, ``q = p + 1``
+    cyclically, is a side of the angles at ``p`` (as ``d_ij``, sign -) and at ``q`` (as ``d_ik``,
+    sign +), and ``hess phi`` is even, so ``sum_r c_r H_r`` is a sum over the three edges of
+    ``(c_q - c_p)`` times ``hess phi(d_e)`` placed as ``[[h, -h], [-h, h]]`` on ``(p, q)``."""
+    T = P.shape[0]
+    D = np.zeros((T, 6, 6))
+    edges = ((0, 1), (1, 2), (2, 0))
+    slots = [(slice(2 * p, 2 * p + 2), slice(2 * q, 2 * q + 2)) for p, q in edges]
+    d = np.stack([P[:, q] - P[:, p] for p, q in edges], axis=1)                 # (T, 3, 2)
+    L2 = np.einsum("tei,tei->te", d, d)
+    for e, (ip, iq) in enumerate(slots):
+        delta = v[:, iq] - v[:, ip]
+        dd = np.einsum("ti,ti->t", d[:, e], delta)
+        G = (np.einsum("ti,tj->tij", d[:, e], delta) + dd[:, None, None] * np.eye(2)
+             - 3 * (dd / L2[:, e])[:, None, None] * np.einsum("ti,tj->tij", d[:, e], d[:, e]))
+        G /= (2 * L2[:, e] ** 1.5)[:, None, None]
+        D[:, iq, iq] += G
+        D[:, ip, ip] += G
+        D[:, iq, ip] -= G
+        D[:, ip, iq] -= G
     if torsion_scale == 0.0:
-        return K
-    # torsional springs: R (T, 3, 6) and C (T, 3)
+        return D
+    dx, dy = d[..., 0], d[..., 1]
+    off = dy**2 - dx**2
+    h = np.stack([np.stack([2 * dx * dy, off], -1), np.stack([off, -2 * dx * dy], -1)], -2) / (L2**2)[..., None, None]
     x, y = P[..., 0], P[..., 1]
     area2 = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
-    R = np.zeros((T, 3, 6), dtype=P.dtype)
-    C = np.empty((T, 3), dtype=P.dtype)
-    for r, (i, j, k) in enumerate(((0, 1, 2), (1, 2, 0), (2, 0, 1))):
-        dij, dik = P[:, j] - P[:, i], P[:, k] - P[:, i]
-        Lij2, Lik2 = np.einsum("ti,ti->t", dij, dij), np.einsum("ti,ti->t", dik, dik)
-        a_ij, b_ij = dij[:, 0] / Lij2, dij[:, 1] / Lij2
-        a_ik, b_ik = dik[:, 0] / Lik2, dik[:, 1] / Lik2
-        R[:, r, 2 * i] = b_ik - b_ij
-        R[:, r, 2 * i + 1] = a_ij - a_ik
-        R[:, r, 2 * j] = b_ij
-        R[:, r, 2 * j + 1] = -a_ij
-        R[:, r, 2 * k] = -b_ik
-        R[:, r, 2 * k + 1] = a_ik
-        C[:, r] = Lij2 * Lik2 / area2**2            # L_ij^2 L_ik^2 / (4 A^2), 2A = area2
-    K += torsion_scale * np.einsum("tri,tr,trj->tij", R, C, R)
-    return K
+    grad_area2 = np.stack([y[:, 1] - y[:, 2], x[:, 2] - x[:, 1], y[:, 2] - y[:, 0], x[:, 0] - x[:, 2],
+                           y[:, 0] - y[:, 1], x[:, 1] - x[:, 0]], axis=1) / area2[:, None]
+    R = angle_gradients(d, L2)               # row r: grad theta_r
+    Hv = np.zeros((T, 3, 6))                 # row r: H_r v
+    dlogC = np.zeros((T, 3, 6))              # row r: grad C_r / C_r
+    for e, ((p, q), (ip, iq)) in enumerate(zip(edges, slots, strict=True)):
+        hu = np.einsum("tij,tj->ti", h[:, e], v[:, iq] - v[:, ip])             # [[h, -h], [-h, h]] v = (-hu, hu)
+        for r, sign in ((p, -1.0), (q, 1.0)):        # e is d_ij of the angle at p, -d_ik of the angle at q
+            Hv[:, r, iq] += sign * hu
+            Hv[:, r, ip] -= sign * hu
+            dlogC[:, r, iq] += 2 * d[:, e] / L2[:, e, None]                          # grad L_e^2 / L_e^2
+            dlogC[:, r, ip] -= 2 * d[:, e] / L2[:, e, None]
+    C = np.stack([L2[:, 0] * L2[:, 2], L2[:, 1] * L2[:, 0], L2[:, 2] * L2[:, 1]], axis=1) / (area2**2)[:, None]
+    dlogC -= 2 * grad_area2[:, None, :]
+    w = np.einsum("tri,ti->tr", R, v)
+    c = C * w
+    for e, (ip, iq) in enumerate(slots):
+        Ge = (c[:, edges[e][1]] - c[:, edges[e][0]])[:, None, None] * h[:, e]
+        D[:, iq, iq] += torsion_scale * Ge
+        D[:, ip, ip] += torsion_scale * Ge
+        D[:, iq, ip] -= torsion_scale * Ge
+        D[:, ip, iq] -= torsion_scale * Ge
+    right = c[..., None] * dlogC + C[..., None] * Hv
+    return D + torsion_scale * np.einsum("tri,trj->tij", R, right)
 
 
-_SELECT = {tri: np.eye(8)[np.ravel([(2 * a, 2 * a + 1) for a in tri])]
-           for name in TRIANGLES for tri in TRIANGLES[name]}
+def _on_triangles(Xe: np.ndarray, diagonal: np.ndarray, triangle_fn, v: np.ndarray | None = None) -> np.ndarray:
+    """``(E, 8, 8)``: per quad the weighted sum of ``triangle_fn`` over its triangles (one call for
+    all of them), each placed at its triangle's quad dofs. ``triangle_fn(P (T, 3, 2), v (T, 6))``;
+    ``v`` ``(E, 8)`` per quad, or None."""
+    E = Xe.shape[0]
+    parts = []                       # (quads, weights, the triangle's quad dofs)
+    for code, name in enumerate(("1-3", "2-4")):
+        weight = np.where(diagonal == code, 1.0, np.where(diagonal == 2, 0.5, 0.0))
+        quads = np.flatnonzero(weight > 0)
+        if quads.size:
+            parts += [(quads, weight[quads], tri) for tri in TRIANGLES[name]]
+    P = np.concatenate([Xe[quads][:, tri, :] for quads, _, tri in parts])
+    dofs = [np.ravel([(2 * a, 2 * a + 1) for a in tri]) for _, _, tri in parts]
+    vt = None if v is None else np.concatenate([v[quads][:, idx] for (quads, _, _), idx in zip(parts, dofs, strict=True)])
+    Kt = triangle_fn(P, vt).reshape(len(P), 36)
+    K = np.zeros((E, 64), dtype=Kt.dtype)
+    start = 0
+    for (quads, weight, _), idx in zip(parts, dofs, strict=True):
+        stop = start + quads.size
+        K[quads[:, None], (8 * idx[:, None] + idx[None, :]).ravel()] += weight[:, None] * Kt[start:stop]
+        start = stop
+    return K.reshape(E, 8, 8)
 
 
 def quad_stiffness(Xe: np.ndarray, diagonal: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
-    """Spring stiffness ``(E, 8, 8)`` of quads ``Xe`` ``(E, 4, 2)``.
+    """Spring stiffness ``(E, 8, 8)`` of quads ``Xe`` ``(E, 4, 2)`` (complex-safe).
 
     diagonal : (E,) codes 0 = "1-3", 1 = "2-4", 2 = "both"
     """
-    E = Xe.shape[0]
-    K = np.zeros((E, 8, 8), dtype=Xe.dtype)
-    weight = {0: np.where(diagonal == 0, 1.0, np.where(diagonal == 2, 0.5, 0.0)),
-              1: np.where(diagonal == 1, 1.0, np.where(diagonal == 2, 0.5, 0.0))}
-    for code, name in enumerate(("1-3", "2-4")):
-        use = weight[code] > 0
-        if not use.any():
-            continue
-        Xu = Xe[use]
-        Ku = 0.0
-        for tri in TRIANGLES[name]:
-            S = _SELECT[tri]                                   # (6, 8) triangle dofs -> quad dofs
-            Ku = Ku + np.matmul(np.matmul(S.T, triangle_stiffness(Xu[:, tri, :], torsion_scale)), S)
-        K[use] += weight[code][use, None, None] * Ku
-    return K
+    return _on_triangles(Xe, diagonal, lambda P, _: triangle_stiffness(P, torsion_scale))
+
+
+def quad_force_derivative(Xe: np.ndarray, v: np.ndarray, diagonal: np.ndarray,
+                          torsion_scale: float = 1.0) -> np.ndarray:
+    """``d(quad_stiffness(Xe) v)/dXe`` ``(E, 8, 8)`` (last axis the corner coordinate ``2 a + i``)
+    for quad motions ``v`` ``(E, 8)`` held fixed; ``diagonal`` as :func:`quad_stiffness`."""
+    return _on_triangles(Xe, diagonal, lambda P, vt: triangle_force_derivative(P, vt, torsion_scale), v)

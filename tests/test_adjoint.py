@@ -81,8 +81,10 @@ def test_two_way_total_derivatives(objective, mover, sharp):
     assert err < 1e-5, err
 
 
-@pytest.mark.parametrize("mover", ["yeoh", "linear", "spring-1"])
+@pytest.mark.parametrize("mover", ["yeoh", "linear", "spring-1", "spring-3"])
 def test_monolithic_adjoint_matches_central_differences(mover):
+    """The monolithic Newton's adjoint (the transposed block Jacobian; with the spring in
+    increments its coupling is the reverse sweep through them, a LinearMap's transpose)."""
     P = problem("effects.coupling=two-way", "coupled.method=monolithic", "effects.fluid=stokes",
                 *MOVERS[mover])
     gamma, d = design_and_direction(P, False, seed=2)

@@ -103,7 +103,7 @@ def test_a_newton_whose_block_gmres_fails_falls_back_to_the_whole_jacobians_lu(m
     class Useless(BlockGaussSeidel):
         setup_iterations = 0
 
-        def preconditioner(self, transpose=False):
+        def preconditioner(self, transpose=False, matrix=None):
             return np.copy
 
     model, rho = soft_model("monolithic", "coupled.jacobian_solver=direct")
@@ -117,3 +117,36 @@ def test_a_newton_whose_block_gmres_fails_falls_back_to_the_whole_jacobians_lu(m
     for f in ("u", "x", "w"):
         ref = getattr(reference, f)
         assert np.abs(getattr(state, f) - ref).max() <= 1e-8 * np.abs(ref).max()
+
+
+def test_a_block_known_by_its_products_solves_like_the_matrix_it_stands_for():
+    """A coupling block given as a LinearMap (products only, e.g. a move in increments' tangent):
+    products, transposed products, GMRES with the block preconditioner and its transpose give
+    what the assembled matrix gives; it remembers its last product (the sweep and the Krylov
+    product after it multiply the same vector); the matrix refuses to assemble, and a GMRES that
+    fails says so instead of falling back to an LU it cannot make."""
+    from tofsi.linalg import BlockMatrix, LinearMap
+    A = coupled_matrix(0.5)
+    blocks = BlockMatrix.from_sparse(A, SIZES).blocks
+    C = blocks[(2, 1)]
+    calls = []
+    products = LinearMap(C.shape, lambda v: (calls.append(1), C @ v)[1], lambda w: C.T @ w)
+    M = BlockMatrix({**blocks, (2, 1): products}, SIZES)
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=A.shape[0])
+    assert np.allclose(M @ v, A @ v, rtol=1e-14, atol=1e-14) and np.allclose(M.T @ v, A.T @ v, atol=1e-14)
+    n = len(calls)
+    M @ v
+    assert len(calls) == n                                   # the same vector: its last product
+    b = rng.normal(size=A.shape[0])
+    solver = BlockGaussSeidel(M)
+    for x, ref in ((solver.solve(b), spla.spsolve(A.tocsc(), b)),
+                   (solver.solve_transpose(b), spla.spsolve(A.T.tocsc(), b))):
+        assert np.linalg.norm(x - ref) <= 1e-9 * np.linalg.norm(ref)
+    assert not M.assembled
+    with pytest.raises(TypeError, match="products only"):
+        M.tocsr()
+    from tofsi.core.errors import NumericalError
+    weak = BlockGaussSeidel(M, max_iter=1)
+    with pytest.raises(NumericalError, match="did not converge"):
+        weak.solve(b)

@@ -44,10 +44,16 @@ def test_partitioned_and_monolithic_agree_and_newton_is_quadratic():
     assert q[-1] <= 1e-10 and len(q) <= len(r) + 3, (q, r)
 
 
-def test_monolithic_refuses_a_path_dependent_mover():
+def test_a_move_in_increments_is_solved_monolithic_but_not_by_one_lu_of_the_whole_jacobian():
+    """The spring in increments (a path-dependent move) is the residual ``x - M(u)``: ``auto``
+    chooses the monolithic Newton for it; its coupling is known by its products only, so a
+    whole-Jacobian LU (``coupled.jacobian_solver = "direct"``) is refused before any solve."""
+    model, _ = soft_model("auto", "mover.name=spring", "mover.spring.increments=4")
+    assert model.motion.path_dependent
+    assert model.system.method_for(model.system.cycles[0]) == "monolithic"
     with pytest.raises(InputError) as err:
-        soft_model("monolithic", "mover.name=spring")
-    assert err.value.key == "coupled.method"
+        soft_model("monolithic", "mover.name=spring", "coupled.jacobian_solver=direct")
+    assert err.value.key == "coupled.jacobian_solver"
 
 
 RESIDUAL_MOVERS = [("yeoh", []), ("linear", []), ("spring", ["mover.spring.diagonals=both",

@@ -80,3 +80,31 @@ def test_vjp_matches_central_differences(name, params, blended):
         ds = rng.normal(size=mesh.n_nodes)
         s = problem.blend
         assert sbar @ ds == pytest.approx(fd(blend=(s + h * ds, s - h * ds)), rel=1e-7, abs=1e-10)
+
+
+PATH_DEPENDENT = [c for c in CASES if c[1].get("increments", 1) > 1]
+
+
+@pytest.mark.parametrize("blended", [False, True], ids=["explicit", "blended"])
+@pytest.mark.parametrize("name,params", PATH_DEPENDENT, ids=[f"{n}-{p}" for n, p in PATH_DEPENDENT])
+def test_jvp_matches_central_differences_and_the_vjp(name, params, blended):
+    """The tangent sweep of a move in increments (a coupled Newton's ``dx/du``): against central
+    differences of the move, and ``xbar . J du == (J^T xbar) . du`` with the reverse sweep to
+    round-off (the two share each increment's factors, not their arithmetic)."""
+    mesh, problem, u = setup_problem(blended)
+    mover = movers.create(name, linear_tol=1e-15, **params)
+    result = mover.move(problem, u)
+    rng = np.random.default_rng(13)
+    du = np.zeros_like(u)
+    moved = np.setdiff1d(np.arange(mesh.n_nodes), problem.fixed_nodes) if blended else problem.fixed_nodes
+    du[moved] = rng.normal(size=(moved.size, 2))
+    x_dot = mover.jvp(problem, result, du)
+    h = 1e-6
+    fd = (mover.move(problem, u + h * du).displacement - mover.move(problem, u - h * du).displacement) / (2 * h)
+    assert np.abs(x_dot - fd).max() <= 1e-7 * np.abs(fd).max()
+    xbar = rng.normal(size=(mesh.n_nodes, 2))
+    ubar = mover.vjp(problem, result, xbar)[0]
+    assert np.sum(xbar * x_dot) == pytest.approx(np.sum(ubar * du), rel=1e-12)
+    second = rng.normal(size=du.shape) * (du != 0)                 # linear in its input
+    assert np.allclose(mover.jvp(problem, result, du + 2 * second),
+                       x_dot + 2 * mover.jvp(problem, result, second), rtol=1e-12, atol=1e-15)

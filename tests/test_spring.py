@@ -7,7 +7,7 @@ import pytest
 
 from movers.base import MotionProblem
 from movers.spring import SpringMover, SpringParams
-from movers.spring_kernel import quad_stiffness, triangle_stiffness
+from movers.spring_kernel import quad_force_derivative, quad_stiffness, triangle_stiffness
 from reference_kernels import spring_quad
 from tofsi.mesh import quality
 from tofsi.mesh.structured import StructuredQuadMesh
@@ -62,6 +62,27 @@ def test_vectorized_quads_match_the_slow_oracle(diagonal):
     K = quad_stiffness(Xe, np.full(7, code), torsion_scale=0.7)
     for e in range(7):
         np.testing.assert_allclose(K[e], spring_quad(Xe[e], diagonal, 0.7), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("torsion_scale", [0.0, 0.7])
+def test_force_shape_derivative_matches_central_differences_of_the_oracle(torsion_scale):
+    """The closed-form ``d(K(X) v)/dX`` (what the increments' tangent and reverse sweeps use)
+    against central differences of the slow oracle's forces, every diagonal code."""
+    rng = np.random.default_rng(5)
+    base = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    Xe = base + 0.2 * rng.uniform(-1, 1, size=(6, 4, 2))
+    v = rng.normal(size=(6, 8))
+    codes = np.array([0, 1, 2, 0, 1, 2])
+    D = quad_force_derivative(Xe, v, codes, torsion_scale)
+    h = 1e-6
+    for e in range(6):
+        diagonal = ("1-3", "2-4", "both")[codes[e]]
+
+        def force(X, e=e, diagonal=diagonal):
+            return spring_quad(X.reshape(4, 2), diagonal, torsion_scale) @ v[e]
+        fd = np.column_stack([(force(Xe[e].ravel() + h * d) - force(Xe[e].ravel() - h * d)) / (2 * h)
+                              for d in np.eye(8)])
+        np.testing.assert_allclose(D[e], fd, rtol=1e-7, atol=1e-7 * np.abs(fd).max())
 
 
 def test_triangle_stiffness_annihilates_rigid_motion():

@@ -24,7 +24,9 @@ derivatives at one point and owns the factorization of its own Jacobian:
 A block whose map has no residual form (a mesh mover solved in increments
 on the updated mesh) is written as the explicit map ``R = z - Phi(inputs)``:
 its linearization has ``matrix() = I`` and ``transpose_partials`` is minus the
-map's vector-Jacobian product (:class:`ExplicitLinearization`).
+map's vector-Jacobian product (:class:`ExplicitLinearization`); with the
+map's tangent its couplings ``-Phi_other`` are operators (products only,
+``FieldBlock.matrix_free_couplings``), and monolithic Newton solves it too.
 
 Continuation parameters (SIMP penalty, Brinkman q, projection sharpness,
 load exponent) are inputs of every solve, a frozen :class:`Continuation`
@@ -128,7 +130,9 @@ class Linearization(ABC):
         """``matrix()^-T b`` (the adjoint solve, with the forward factorization)."""
 
     def coupling(self, other: str) -> sp.spmatrix:
-        """``dR/dz_other`` as a sparse matrix (monolithic Newton); ``None`` if it is zero."""
+        """``dR/dz_other`` as a sparse matrix (monolithic Newton), or an operator with products
+        ``@`` and ``.T @`` where the block lists ``other`` in ``matrix_free_couplings``; ``None``
+        if it is zero."""
         raise NotImplementedError(f"block {self.block.name!r} gives no coupling matrix; "
                                   "it cannot take part in a monolithic solve")
 
@@ -186,8 +190,9 @@ class FieldBlock(ABC):
     inputs: tuple[str, ...] = ()
     symbol: str = ""                   # the residual's letter in reports (F, S, D); default the name
     report_name: str = ""
-    has_residual: bool = True          # False: an explicit (path-dependent) map
+    has_residual: bool = True          # False: an explicit map without a residual form
     slow_couplings: tuple[str, ...] = ()   # couplings a quasi-Newton solve may keep fixed
+    matrix_free_couplings: tuple[str, ...] = ()   # couplings known by their products only (no LU of the whole)
 
     @property
     @abstractmethod

@@ -14,8 +14,9 @@ components, in topological order, are solved one after the other:
     change ``|z~ - z| / |z~|`` is at most ``tol``; the blocks before it in
     the sweep are then solved once more, so every field is consistent; or
   - monolithic: Newton on the block Jacobian ``[[dR_a/dz_b]]`` (every block of
-    the cycle needs a residual form) with a backtracking line search, each step
-    solved inexactly by :meth:`BlockSystem.linear_solver`
+    the cycle needs a residual form; a move in increments is the residual
+    ``x - M(u)`` whose coupling is known by its products) with a backtracking
+    line search, each step solved inexactly by :meth:`BlockSystem.linear_solver`
     (:mod:`tofsi.coupling.monolithic`).
 
 Both report their history and raise :class:`~tofsi.core.errors.NumericalError`
@@ -36,7 +37,7 @@ import scipy.sparse as sp
 from tofsi.core.blocks import Continuation, FieldBlock, Linearization, State
 from tofsi.core.errors import InputError, NumericalError
 from tofsi.core.iteration import InterfaceQuasiNewton
-from tofsi.linalg import BlockGaussSeidel, BlockMatrix, LinearAlgebra, RecyclingSolver, nested_dissection
+from tofsi.linalg import BlockGaussSeidel, BlockMatrix, LinearAlgebra, LinearMap, RecyclingSolver, nested_dissection
 from tofsi.linalg.backends import canonical_csr, resolve
 from tofsi.coupling.monolithic import solve_monolithic
 
@@ -85,6 +86,14 @@ class BlockSystem:
                     raise InputError("coupled.method", "monolithic",
                                      f"field {explicit[0]!r} is an explicit (path-dependent) map "
                                      "without a residual form; use 'partitioned' or 'auto'")
+        if self.settings.jacobian_solver == "direct":
+            for comp in self.cycles:
+                free = [n for n in comp if self.by_name[n].matrix_free_couplings]
+                if free and self.method_for(comp) == "monolithic":
+                    raise InputError("coupled.jacobian_solver", "direct",
+                                     f"field {free[0]!r} gives its coupling by products only (a mover in "
+                                     "increments on the updated mesh): the whole Jacobian cannot be "
+                                     "factorized; use 'block'")
         sizes = [b.size for b in self.blocks]
         self.offsets = dict(zip(self.names, np.cumsum([0, *sizes])[:-1].astype(int), strict=True))
         self.size = int(sum(sizes))
@@ -164,7 +173,8 @@ class BlockSystem:
 
     def block_jacobian(self, lins: dict[str, Linearization], names, kept: dict | None = None) -> BlockMatrix:
         """The block Jacobian of :meth:`jacobian` kept as its blocks (products, a block
-        preconditioner's diagonal blocks), assembled by nobody unless a whole-matrix LU asks."""
+        preconditioner's diagonal blocks), assembled by nobody unless a whole-matrix LU asks
+        (a coupling known by its products only stays a :class:`~tofsi.linalg.LinearMap`)."""
         kept = kept or {}
         blocks = {}
         for i, a in enumerate(names):
@@ -173,7 +183,7 @@ class BlockSystem:
                 B = (lin.matrix() if b == a else kept[(a, b)] if (a, b) in kept else
                      (lin.coupling(b) if b in self.by_name[a].inputs else None))
                 if B is not None:
-                    blocks[(i, j)] = B if sp.isspmatrix_csr(B) else sp.csr_matrix(B)
+                    blocks[(i, j)] = B if sp.isspmatrix_csr(B) or isinstance(B, LinearMap) else sp.csr_matrix(B)
         return BlockMatrix(blocks, [self.by_name[n].size for n in names])
 
     def ordering(self, names) -> np.ndarray | None:

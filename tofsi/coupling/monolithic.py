@@ -139,6 +139,8 @@ def newton_step(system, comp, lins, kept, b, rtol, solver, fields, merit, norm, 
     try:
         step = solver.solve(J, b, rtol=rtol)
     except NumericalError as err:             # block Gauss-Seidel too weak: the monolithic LU
+        if not J.assembled:                   # a coupling known by its products only: none
+            raise
         log.warning("monolithic Newton %d: %s; factorizing the whole Jacobian instead", len(history) - 1, err)
         history[-1]["fallback"] = "direct"
         solver = system.linear_solver(comp, "direct")

@@ -3,11 +3,19 @@
 The scene's mover (package :mod:`movers`) moves the fluid mesh with the
 structure (:mod:`tofsi.physics.mesh_motion`): two-way coupling, or the
 mesh-motion commands' prescribed structure motion. The block's residual is
-``D`` (a residual mover's; a path-dependent mover is the explicit map
-``x - Phi(u, rho)``), its input the structure ``u``; its linearization is the
-mover's tangent (or its vector-Jacobian product). The mesh's prescribed
-values follow the structure, so its Jacobian keeps them (see
-:meth:`movers.base.Mover.residual`).
+``D`` (a residual mover's), its input the structure ``u``; its linearization
+is the mover's tangent. The mesh's prescribed values follow the structure,
+so its Jacobian keeps them (see :meth:`movers.base.Mover.residual`).
+
+A path-dependent mover (increments on the updated mesh) has no residual of
+its own; its block eliminates it: the residual is ``x - M(u, rho)``, ``M``
+the move, so ``dR/dx = I`` and the coupling ``dR/du = -dM/du`` is a
+:class:`~tofsi.linalg.LinearMap` -- products by the move's tangent sweep,
+transposed products by its reverse sweep, both from what the move stores
+once (:class:`movers.incremental.IncrementDerivatives`). The monolithic
+Newton takes it like any block (the block Gauss-Seidel preconditioner's
+diagonal block is the identity; the whole Jacobian is never assembled), and
+a partitioned sweep like the explicit map it is.
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ from tofsi.core.config import build, coerce, documentation, option
 from tofsi.core.errors import InputError
 from tofsi.core.registry import FIELDS, MOVERS
 from tofsi.fields.base import MOTION_ONLY, Field, Memory, Picture, on_q2_nodes, state_points
-from tofsi.linalg import RecyclingSolver
+from tofsi.linalg import LinearMap, RecyclingSolver
 from tofsi.mesh import quality
 from tofsi.scene.settings import MAX_STIFFENING
 from tofsi.scene.tables import SceneTable, mover_name, plain
@@ -181,6 +189,33 @@ class MotionLinearization(Linearization):
         return {"u": u_bar}, rho_bar
 
 
+class MoveLinearization(ExplicitLinearization):
+    """A path-dependent move ``x = M(u, rho)`` as the residual ``x - M``: ``matrix() = I``, the
+    coupling ``-dM/du`` a :class:`~tofsi.linalg.LinearMap` (tangent and reverse sweeps through
+    the move's increments), the transposed partials minus the reverse sweep. ``result``: the
+    move at the point's ``u`` and ``rho``."""
+
+    def __init__(self, block, fields, rho, params, result):
+        motion = block.motion
+
+        def vjp(x_bar):
+            u_bar, rho_bar = motion.vjp(result, np.asarray(x_bar).reshape(-1, 2), rho)
+            return {"u": u_bar}, rho_bar
+        super().__init__(block, fields, rho, params, vjp)
+        self.result = result
+
+    @property
+    def residual(self):
+        return self.value - self.result.displacement.ravel()
+
+    def coupling(self, other):
+        if other != "u":
+            return None
+        motion, result, size = self.block.motion, self.result, self.block.size
+        return self.kept("D_u", lambda: LinearMap(
+            (size, size), lambda v: -motion.jvp(result, v), lambda w: -self.vjp(w)[0]["u"]))
+
+
 class MotionBlock(FieldBlock):
     """The fluid-mesh displacement ``x``: the scene's mover driven by the structure."""
 
@@ -190,7 +225,9 @@ class MotionBlock(FieldBlock):
     def __init__(self, motion: MeshMotion):
         self.motion = motion
         self.size = 2 * motion.mesh.n_nodes
-        self.has_residual = not motion.path_dependent
+        self.explicit = motion.path_dependent      # the residual x - M(u, rho) of a move in increments
+        self.matrix_free_couplings = ("u",) if self.explicit else ()
+        self.slow_couplings = ("u",) if self.explicit else ()   # its tangent: a store per move
 
     @property
     def fixed(self):
@@ -200,13 +237,13 @@ class MotionBlock(FieldBlock):
         return np.zeros(self.size)
 
     def residual(self, fields, rho, params):
-        if self.has_residual:
-            return self.motion.residual(fields["x"], fields["u"], rho, jacobian=False)[0]
-        return fields["x"] - self.motion.move(fields["u"], rho).displacement.ravel()
+        if self.explicit:
+            return fields["x"] - self.motion.move(fields["u"], rho).displacement.ravel()
+        return self.motion.residual(fields["x"], fields["u"], rho, jacobian=False)[0]
 
     def linearize(self, fields, rho, params):
-        if not self.has_residual:
-            raise NotImplementedError("a path-dependent mover has no residual to linearize")
+        if self.explicit:
+            return MoveLinearization(self, fields, rho, params, self.motion.move(fields["u"], rho))
         return MotionLinearization(self, fields, rho, params)
 
     def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
@@ -214,13 +251,10 @@ class MotionBlock(FieldBlock):
         result = self.motion.move(fields["u"], rho, progress, initial=guess, solver=recycled)   # warm starts
         x = result.displacement.ravel()
         values = {**fields, "x": x}
-        if self.has_residual:
-            lin = MotionLinearization(self, values, rho, params, solver=result.solver)
+        if self.explicit:
+            lin = MoveLinearization(self, values, rho, params, result)
         else:
-            def vjp(x_bar):
-                u_bar, rho_bar = self.motion.vjp(result, x_bar.reshape(-1, 2), rho)
-                return {"u": u_bar}, rho_bar
-            lin = ExplicitLinearization(self, values, rho, params, vjp)
+            lin = MotionLinearization(self, values, rho, params, solver=result.solver)
         return x, lin, result.report.as_dict()
 
     def residual_scale(self, fields, rho, params, lin):

@@ -55,6 +55,7 @@ class BlockGaussSeidel:
 
     exact = False
     symmetric = False
+    follows_matrix = True      # preconditioner(transpose, matrix): the sweep takes the matrix's couplings
     setup_iterations = 10      # factorizing the diagonal blocks costs about 10 GMRES iterations
 
     def __init__(self, A, sizes=None, orderings=None, tol: float = 1e-10, max_iter: int = 200,
@@ -70,34 +71,49 @@ class BlockGaussSeidel:
         self.starts = A.starts
         n = len(A.sizes)
         orderings = orderings or [None] * n
-        self.diagonal, self.lower, self.upper_t = [], [], []
-        for i in range(n):
-            self.diagonal.append(self.direct(canonical_csr(A.blocks[(i, i)]), perm=orderings[i]))
-            self.lower.append(A.sub((i,), range(i)))                   # A_ij, j < i
-            self.upper_t.append(A.sub(range(i + 1, n), (i,)).T)        # (A_ji)^T, j > i: M^T's upper part
+        self.diagonal = [self.direct(canonical_csr(A.blocks[(i, i)]), perm=orderings[i]) for i in range(n)]
+        self.lower, self.upper_t = self._couplings(A)
         self.memory_bytes = sum(d.memory_bytes for d in self.diagonal)
         self._solve = [d.preconditioner(False) for d in self.diagonal]      # triangular solves only
         self._solve_t = [d.preconditioner(True) for d in self.diagonal]
 
-    def _sweep(self, r: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _couplings(A: BlockMatrix):
+        """Per block row ``i`` of ``A``: its blocks left of the diagonal ``A_ij, j < i`` (``M``'s
+        sweep) and the transposes ``(A_ji)^T, j > i`` (``M^T``'s upper part)."""
+        n = len(A.sizes)
+        return ([A.sub((i,), range(i)) for i in range(n)],
+                [A.sub(range(i + 1, n), (i,)).T for i in range(n)])
+
+    def _sweep(self, r: np.ndarray, lower=None) -> np.ndarray:
         """``M^{-1} r``: forward block substitution."""
+        lower = lower or self.lower
         z = np.empty_like(r)
         for i, (a, b) in enumerate(pairwise(self.starts)):
-            rhs = r[a:b] - self.lower[i] @ z[:a] if self.lower[i] else r[a:b]
+            rhs = r[a:b] - lower[i] @ z[:a] if lower[i] else r[a:b]
             z[a:b] = self._solve[i](rhs)
         return z
 
-    def _sweep_transpose(self, r: np.ndarray) -> np.ndarray:
+    def _sweep_transpose(self, r: np.ndarray, upper_t=None) -> np.ndarray:
         """``M^{-T} r``: backward block substitution with the transposed blocks."""
+        upper_t = upper_t or self.upper_t
         z = np.empty_like(r)
         for i in reversed(range(len(self._solve))):
             a, b = self.starts[i], self.starts[i + 1]
-            rhs = r[a:b] - self.upper_t[i] @ z[b:] if self.upper_t[i] else r[a:b]
+            rhs = r[a:b] - upper_t[i] @ z[b:] if upper_t[i] else r[a:b]
             z[a:b] = self._solve_t[i](rhs)
         return z
 
-    def preconditioner(self, transpose: bool = False):
-        """``b -> M^{-1} b`` (or ``M^{-T} b``), for GMRES on this or a nearby matrix."""
+    def preconditioner(self, transpose: bool = False, matrix: BlockMatrix | None = None):
+        """``b -> M^{-1} b`` (or ``M^{-T} b``), for GMRES on this or a nearby matrix. ``matrix``:
+        that nearby matrix (``A^T`` where ``transpose``), in blocks of these sizes: the sweep then
+        takes its blocks off the diagonal (the current couplings, cheap: products) with these
+        diagonal factors, and multiplies the vectors the Krylov product after it multiplies."""
+        if isinstance(matrix, BlockMatrix) and matrix.sizes == self.A.sizes:
+            lower, upper_t = self._couplings(matrix.T if transpose else matrix)
+            if transpose:
+                return lambda r: self._sweep_transpose(r, upper_t)
+            return lambda r: self._sweep(r, lower)
         return self._sweep_transpose if transpose else self._sweep
 
     def _gmres(self, A, b: np.ndarray, apply) -> np.ndarray:
@@ -112,10 +128,13 @@ class BlockGaussSeidel:
         return x
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        """``A^-1 b`` by GMRES to ``tol``; the LU of the whole of ``A`` when GMRES fails."""
+        """``A^-1 b`` by GMRES to ``tol``; the LU of the whole of ``A`` when GMRES fails (and ``A``
+        can be assembled: else the failure)."""
         try:
             return self._gmres(self.A, b, self._sweep)
         except NumericalError as err:
+            if not self.A.assembled:
+                raise
             log.warning("%s; factorizing the whole matrix instead", err)
             return self.direct(self.A.tocsr()).solve(b)
 
@@ -124,5 +143,7 @@ class BlockGaussSeidel:
         try:
             return self._gmres(self.A.T, b, self._sweep_transpose)
         except NumericalError as err:
+            if not self.A.assembled:
+                raise
             log.warning("%s; factorizing the whole matrix instead", err)
             return self.direct(self.A.tocsr()).solve_transpose(b)

@@ -8,6 +8,10 @@ no stacking into one sparse matrix per Newton step, no slicing it back into
 blocks for the preconditioner. :meth:`BlockMatrix.tocsr` assembles the whole
 matrix where a whole-matrix factorization asks for it.
 
+A block off the diagonal may be a :class:`LinearMap`: products only (e.g. the
+derivative of a map computed by a sweep, never assembled). The matrix then
+multiplies and preconditions, but does not assemble (:attr:`BlockMatrix.assembled`).
+
     A = BlockMatrix({(0, 0): A00, (0, 2): A02, ...}, sizes=(n0, n1, n2))
     A @ v, A.T @ v, A.sub((1, 2), (1, 2)).tocsr()
 """
@@ -18,6 +22,55 @@ import numpy as np
 import scipy.sparse as sp
 
 from tofsi.linalg.backends import canonical_csr
+
+
+class LinearMap:
+    """A matrix known by its products ``v -> A v`` and ``w -> A^T w`` only (float vectors of
+    ``shape``). It keeps its last product of each kind, keyed by the vector: a block
+    preconditioner's sweep and the Krylov product after it often multiply the same vector."""
+
+    dtype = np.dtype(float)
+    nnz = 0
+
+    def __init__(self, shape, matvec, rmatvec):
+        self.shape = tuple(int(s) for s in shape)
+        self._apply = {False: matvec, True: rmatvec}
+        self._last = {False: None, True: None}
+
+    def product(self, v: np.ndarray, transpose: bool = False) -> np.ndarray:
+        v = np.asarray(v, dtype=float)
+        last = self._last[transpose]
+        if last is None or not np.array_equal(last[0], v):
+            last = self._last[transpose] = (v.copy(), np.asarray(self._apply[transpose](v), dtype=float))
+        return last[1].copy()
+
+    def __matmul__(self, v):
+        return self.product(v)
+
+    @property
+    def T(self) -> "_TransposedMap":
+        return _TransposedMap(self)
+
+
+class _TransposedMap:
+    """``A^T`` of a :class:`LinearMap` (its products, the same memory)."""
+
+    dtype = np.dtype(float)
+    nnz = 0
+
+    def __init__(self, of: LinearMap):
+        self.of, self.shape = of, of.shape[::-1]
+
+    def __matmul__(self, v):
+        return self.of.product(v, transpose=True)
+
+    @property
+    def T(self) -> LinearMap:
+        return self.of
+
+
+def _is_map(B) -> bool:
+    return isinstance(B, (LinearMap, _TransposedMap))
 
 
 class BlockMatrix:
@@ -38,6 +91,7 @@ class BlockMatrix:
             self.blocks[(i, j)] = B
         self.dtype = np.result_type(*[B.dtype for B in self.blocks.values()]) if self.blocks else np.float64
         self.nnz = sum(B.nnz for B in self.blocks.values())
+        self.assembled = not any(_is_map(B) for B in self.blocks.values())   # tocsr() possible
 
     @classmethod
     def from_sparse(cls, A, sizes) -> "BlockMatrix":
@@ -91,7 +145,10 @@ class BlockMatrix:
         return _Rectangular(blocks, [self.sizes[i] for i in rows], [self.sizes[j] for j in cols])
 
     def tocsr(self) -> sp.csr_matrix:
-        """The assembled matrix (canonical CSR)."""
+        """The assembled matrix (canonical CSR); a matrix with a :class:`LinearMap` block raises."""
+        if not self.assembled:
+            raise TypeError("a block of this matrix is known by its products only (a LinearMap): "
+                            "it cannot be assembled")
         return _Rectangular(self.blocks, self.sizes, self.sizes).tocsr()
 
 

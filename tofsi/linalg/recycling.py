@@ -106,7 +106,8 @@ class RecyclingSolver:
         r0 = bnorm if x0 is None else float(np.linalg.norm(b - A @ x0))
         if r0 <= goal:
             return (np.zeros_like(b) if x0 is None else x0), True
-        apply = self.solver.preconditioner(transpose)
+        apply = (self.solver.preconditioner(transpose, matrix=A) if getattr(self.solver, "follows_matrix", False)
+                 else self.solver.preconditioner(transpose))
         try:
             if self.solver.exact:
                 x, its = flexible_gmres(A, b, apply, goal, self.max_iter, self.max_iter, x0)

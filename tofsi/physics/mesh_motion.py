@@ -185,6 +185,11 @@ class MeshMotion:
         t_bar, f_bar, s_bar = self.mover.vjp(result.problem, result, x_bar)
         return self.target_transpose(t_bar), self.density_transpose(rho, s_bar, f_bar)
 
+    def jvp(self, result: MoveResult, u_dot) -> np.ndarray:
+        """``x_dot`` (2n,) for a change ``u_dot`` of the structure's displacement, the densities
+        held (path-dependent movers: the tangent sweep through the move ``result``)."""
+        return self.mover.jvp(result.problem, result, self.target(u_dot)).ravel()
+
     def residual(self, x, u, rho=None, jacobian: bool = True):
         """``D (2n,)`` and ``D_x`` (true Jacobian; None without ``jacobian``) for residual movers."""
         problem, blend = self._at_density(rho)

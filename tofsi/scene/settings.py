@@ -30,8 +30,9 @@ class CoupledSettings:
 
     method: str = option("auto", choices=("auto", "partitioned", "monolithic"),
                          doc="fixed point (Gauss-Seidel sweeps, the next u by the interface quasi-Newton method IQN-ILS), or Newton on the block Jacobian "
-                             "(needs a mover with a residual form); auto: monolithic when the mover "
-                             "has a residual form, partitioned otherwise")
+                             "(every field needs a residual form; a mover in increments on the updated mesh "
+                             "enters as x - M(u)); auto: monolithic when every field has one (every built-in "
+                             "mover), partitioned otherwise")
     tol: float = option(1e-9, gt=0, lt=1, doc="relative change of u (partitioned) or residual "
                                                "per block (monolithic)")
     max_iter: int = option(60, ge=1, le=10_000, doc="coupling iterations")
@@ -49,7 +50,8 @@ class CoupledSettings:
     jacobian_solver: str = option("block", choices=("block", "direct"),
                                 doc="monolithic: the Newton's linear solver -- block: GMRES preconditioned "
                                     "by block Gauss-Seidel over the fields' own factorizations (flow, "
-                                    "structure, mesh); direct: the LU of the whole coupled Jacobian. Both "
+                                    "structure, mesh); direct: the LU of the whole coupled Jacobian (not for "
+                                    "a mover in increments, whose coupling is known by its products). Both "
                                     "converge to the same solution; block is faster, direct the fallback")
 
 
