@@ -1,7 +1,7 @@
 """``tofsi optimize SCENE``: topology optimization with NLopt; ``--resume`` continues a run.
 
 Under ``mpiexec -n P`` (P > 1) a flow-only scene, or a compliance FSI scene with a
-small-strain structure (one-way, or two-way with a mover that has a residual form), is
+small-strain structure (one-way, or two-way with any mover), is
 optimized with its flow by slabs (:mod:`tofsi.parallel`): rank 0 runs the optimizer and
 writes every output, the other ranks take part in each evaluation; other scenes are refused
 by name (exit 2). With ``solver.linear_solver = "petsc"`` every rank

@@ -2,8 +2,9 @@
 
 :class:`DistributedFsiProblem` is the :class:`~tofsi.parallel.flow_problem.DistributedFlowProblem`
 of a scene with a small-strain SIMP structure loaded by the flow (``design.objective =
-"compliance"``), and in its two-way stages a fluid mesh moved by a mover with a residual
-form (Yeoh, linear elasticity, the one-increment spring): the same answers as the serial
+"compliance"``), and in its two-way stages a fluid mesh moved by any mover block (Yeoh,
+linear elasticity, the spring analogy in one increment or several -- a path-dependent move
+enters as the explicit map ``x - M(u)``, its adjoint by the move's reverse sweep): the same answers as the serial
 :class:`tofsi.optimization.problem.Problem` (to the solvers' tolerances), the flow solved
 and differentiated by slabs.
 
@@ -84,9 +85,6 @@ class DistributedFsiProblem(DistributedFlowProblem):
 
     def prepare(self) -> None:
         model = self.model
-        if model.motion is not None and model.motion.path_dependent:
-            raise InputError("mover", self.scene.mover.name, "a mover with a residual form (not one solved in "
-                             "increments) for the distributed two-way problem")
         self.coupling = SlabCoupling(self.engine, model.structure)
         self.structure = SlabStructure(model.structure, self.engine)
         self.x: np.ndarray | None = None               # the last converged mesh motion (the next start)
