@@ -171,12 +171,14 @@ def test_the_serial_problem_is_a_design_problem_and_its_evaluation_is_one_record
     assert {"u", "w"} <= set(e.state.fields) and e.ramp == (0, 0)
 
 
-def test_optimize_under_mpiexec_refuses_a_scene_the_distributed_flow_cannot_run(cli, tmp_path, monkeypatch):
+def test_optimize_under_mpiexec_refuses_a_scene_the_distributed_problems_cannot_run(cli, tmp_path, monkeypatch):
     """Under mpiexec (two ranks, as the launcher's environment says) ``tofsi optimize`` of a
-    two-way scene is refused by name -- with the serial route named -- before petsc4py or a
-    mesh is needed; ``solver.linear_solver = petsc`` keeps the serial problem on every rank."""
+    finite-strain FSI scene is refused by name -- with the serial route named -- before
+    petsc4py or a mesh is needed; ``solver.linear_solver = petsc`` keeps the serial problem
+    on every rank."""
     monkeypatch.setenv("OMPI_COMM_WORLD_SIZE", "2")
     monkeypatch.setenv("OMPI_COMM_WORLD_RANK", "0")
-    run = cli("optimize", scene_path("beam_in_channel_optimization"), *[a for s in TINY for a in ("--set", s)],
-              "--output", tmp_path / "o")
-    assert run.returncode == 2 and "effects" in run.stderr and "solver.linear_solver = 'petsc'" in run.stderr
+    run = cli("optimize", scene_path("beam_in_channel_optimization"),
+              *[a for s in [*TINY, "structure.model=neo-hookean"] for a in ("--set", s)], "--output", tmp_path / "o")
+    assert (run.returncode == 2 and "structure.model" in run.stderr
+            and "solver.linear_solver = 'petsc'" in run.stderr), run.stderr

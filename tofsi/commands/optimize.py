@@ -1,8 +1,10 @@
 """``tofsi optimize SCENE``: topology optimization with NLopt; ``--resume`` continues a run.
 
-Under ``mpiexec -n P`` (P > 1) a flow-only scene is optimized with its flow by slabs
-(:mod:`tofsi.parallel`): rank 0 runs the optimizer and writes every output, the other
-ranks take part in each evaluation. With ``solver.linear_solver = "petsc"`` every rank
+Under ``mpiexec -n P`` (P > 1) a flow-only scene, or a compliance FSI scene with a
+small-strain structure (one-way, or two-way with any mover), is
+optimized with its flow by slabs (:mod:`tofsi.parallel`): rank 0 runs the optimizer and
+writes every output, the other ranks take part in each evaluation; other scenes are refused
+by name (exit 2). With ``solver.linear_solver = "petsc"`` every rank
 runs the serial problem instead, MUMPS factorizing across them.
 """
 
@@ -89,13 +91,14 @@ class Pictures:
 @contextmanager
 def design_problem(scene):
     """The scene's design problem: the serial :class:`Problem`; under ``mpiexec`` (more than one
-    rank, ``solver.linear_solver`` not ``petsc``) the distributed flow's, driven from rank 0 (the
+    rank, ``solver.linear_solver`` not ``petsc``) the distributed one (flow-only or FSI), driven from rank 0 (the
     block gets None on the other ranks, which served every evaluation when it begins)."""
     if mpi_size() < 2 or scene.solver.linear_solver == "petsc":
         yield Problem(scene)
         return
     from tofsi.parallel.flow_problem import leading
-    with leading(scene) as problem:
+    from tofsi.parallel.fsi_problem import problem_class
+    with leading(scene, problem_class(scene)) as problem:
         yield problem
 
 

@@ -10,5 +10,11 @@
 * :class:`~tofsi.parallel.flow_problem.DistributedFlowProblem` -- a flow-only design
   problem (a :class:`~tofsi.optimization.protocol.DesignProblem`: replicated design map and
   volume weights, the flow by slabs), driven from rank 0 by ``tofsi optimize`` under
-  ``mpiexec -n P`` (:func:`~tofsi.parallel.flow_problem.leading`, :func:`~tofsi.parallel.flow_problem.serve`).
+  ``mpiexec -n P`` (:func:`~tofsi.parallel.flow_problem.leading`, :func:`~tofsi.parallel.flow_problem.serve`);
+* :class:`~tofsi.parallel.slab_flow.SlabCoupling` -- the fluid load and the coupling partials on a
+  rank's slab with the serial kernels (:class:`~tofsi.parallel.slab_flow.SlabFlow`: a Flow restricted
+  to the slab's elements), summed over ranks;
+* :class:`~tofsi.parallel.slab_structure.SlabStructure` -- the small-strain stiffness by slabs, MUMPS;
+* :class:`~tofsi.parallel.fsi_problem.DistributedFsiProblem` -- compliance FSI (small strain, one-way
+  or two-way with a residual mover), the flow and the structure by slabs, the mover replicated.
 """

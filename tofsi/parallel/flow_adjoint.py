@@ -74,4 +74,5 @@ class SlabObjective:
         value = float(self.mpi.allreduce(float(self.objective.element_values(view).sum())))
         g.destroy()
         lam.destroy()
+        e.release_transpose()
         return value, total

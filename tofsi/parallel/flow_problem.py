@@ -63,17 +63,23 @@ class DistributedFlowProblem:
     """The design problem of a flow-only ``scene``, its flow by slabs on the ranks of ``comm``
     (the velocity block's AMG: ``solver.flow_amg``)."""
 
+    refuse = staticmethod(check)             # what the scene must be (before anything is built)
+
     def __init__(self, scene, comm=None):
-        check(scene)
+        self.refuse(scene)
         serial = Problem(scene)              # mesh, design map, volume weights, model: replicated, never solved
         self.serial, self.scene = serial, scene
         self.model, self.map, self.objective = serial.model, serial.map, serial.objective
         self.engine = DistributedFlow(self.model.flow, comm, scene.solver.flow_amg)
-        self.slab_objective = SlabObjective(self.engine, serial.objective)
         self.kept_point = Kept()
         self.evaluations = 0
         self.guess: np.ndarray | None = None     # the next solve's start (a whole w), else the last state
         self.warm = False                        # the engine's state is the last converged one
+        self.prepare()
+
+    def prepare(self) -> None:
+        """What the objective's adjoint needs beside the flow (here: the flow objective by slabs)."""
+        self.slab_objective = SlabObjective(self.engine, self.objective)
 
     # ---- what needs no solve: the serial problem's, replicated ---------------------------
     @property
@@ -133,17 +139,21 @@ class DistributedFlowProblem:
         self.evaluations += 1
         f, d_rho = self.slab_objective.gradient(rho, params)
         df = p.map.transpose(gamma, params.beta, d_rho)
-        d = self.scene.design
-        weights = p.volume_fraction.weights
-        solid = float(weights @ rho)
-        sign, fraction = (1.0, solid) if d.constraint == "solid" else (-1.0, 1.0 - solid)
-        g = np.array([fraction / d.volume_fraction - 1.0])
-        dg = (sign * p.map.transpose(gamma, params.beta, weights) / d.volume_fraction)[None, :]
+        g, dg, solid = self.volume_bound(gamma, rho)
         w = self.engine.gather()                                                       # rank 0 only
         state = None if w is None else State(rho, {"w": w}, params, True, {"w": report}, stage=stage)
         log.info("distributed evaluation %d: f = %.10g, Newton %d, Krylov %d, transposed %d", self.evaluations,
                  f, report["newton_iterations"], report["krylov_iterations"], self.engine.transposed_iterations)
         return Evaluation(gamma, f, df, g, dg, solid, state=state)
+
+    def volume_bound(self, gamma, rho) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(g (1,), dg/dgamma (1, n_design), solid fraction)`` of the volume bound (no solve)."""
+        p, d, beta = self.serial, self.scene.design, self.params.beta
+        weights = p.volume_fraction.weights
+        solid = float(weights @ rho)
+        sign, fraction = (1.0, solid) if d.constraint == "solid" else (-1.0, 1.0 - solid)
+        g = np.array([fraction / d.volume_fraction - 1.0])
+        return g, (sign * p.map.transpose(gamma, beta, weights) / d.volume_fraction)[None, :], solid
 
     def evaluate(self, gamma) -> tuple[float, np.ndarray]:
         """Objective and its gradient with respect to ``gamma`` (collective)."""
@@ -201,7 +211,7 @@ class Leader:
         self.problem.set_stage(stage)
 
     def set_guess(self, state: State | None) -> None:
-        self._announce("guess", None if state is None else State(state.rho, {"w": state.fields["w"]}))
+        self._announce("guess", None if state is None else State(state.rho, dict(state.fields)))
         self.problem.set_guess(state)
 
     def evaluation(self, gamma) -> Evaluation:
@@ -226,17 +236,18 @@ def serve(problem: DistributedFlowProblem, mpi) -> None:
 
 
 @contextmanager
-def leading(scene):
-    """The distributed flow problem of ``scene`` as rank 0 drives it (a :class:`Leader`); on the
-    other ranks :func:`serve` runs until rank 0 leaves the block, and the block gets None."""
-    check(scene)                                          # before petsc4py is needed
+def leading(scene, kind=DistributedFlowProblem):
+    """The distributed problem of ``scene`` (of class ``kind``: :class:`DistributedFlowProblem`
+    or a subclass) as rank 0 drives it (a :class:`Leader`); on the other ranks :func:`serve`
+    runs until rank 0 leaves the block, and the block gets None."""
+    kind.refuse(scene)                                    # before petsc4py is needed
     from tofsi.linalg.petsc import unavailable            # lazily: the one optional need
     missing = unavailable()
     if missing:
         raise InputError("petsc4py", "not available", missing)
     from petsc4py import PETSc
     mpi = PETSc.COMM_WORLD.tompi4py()
-    problem = DistributedFlowProblem(scene, PETSc.COMM_WORLD)
+    problem = kind(scene, PETSc.COMM_WORLD)
     if mpi.rank != 0:
         serve(problem, mpi)
         yield None

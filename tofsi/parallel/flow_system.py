@@ -36,7 +36,7 @@ import numpy as np
 from tofsi.core.errors import InputError, NumericalError
 from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.linalg.iterative import FLOOR
-from tofsi.parallel.partition import SlabPartition
+from tofsi.parallel.partition import SlabPartition, row_counts
 from tofsi.physics.flow_preconditioner import element_areas
 from tofsi.physics.flow_view import FlowView
 from tofsi.physics.fluid_kernel import fluid_element
@@ -119,24 +119,13 @@ class DistributedFlow:
         self.is_p = PETSc.IS().createGeneral(p.pressure.astype(PETSc.IntType), comm=self.comm)
         self.krylov_iterations = 0
         self.linearized_at = None         # (x, rho, params) of the converged self.mat
+        self.transposed = None            # (linearized_at, J_c^T, its KSP) while an adjoint runs
         self.transposed_iterations = 0
 
     def _row_counts(self):
-        """Non-zeros of each owned row in the diagonal and off-diagonal blocks ``((m,), (m,))``,
-        from the elements touching owned dofs (exact preallocation: no slack to squeeze out)."""
+        """Exact preallocation from the elements touching owned dofs (:func:`row_counts`)."""
         lo, hi = self.part.owned
-        dofs = self.part.new_of_old[self.flow.dofs[self.part.halo_elements]]              # (E_h, 22)
-        owned = (dofs >= lo) & (dofs < hi)
-        k = owned.sum(axis=1)                                                            # owned rows per element
-        rows = np.repeat(dofs[owned], 22)
-        cols = np.repeat(dofs, k, axis=0).reshape(-1)                                    # each owned row: 22 cols
-        pairs = np.unique((rows - lo) * self.flow.size + cols)
-        del rows, cols
-        row, col = pairs // self.flow.size, pairs % self.flow.size
-        inside = (col >= lo) & (col < hi)
-        m = hi - lo
-        return (np.bincount(row[inside], minlength=m).astype(np.int32),
-                np.bincount(row[~inside], minlength=m).astype(np.int32))
+        return row_counts(self.part.new_of_old[self.flow.dofs[self.part.halo_elements]], lo, hi, self.flow.size)
 
     # ---- state --------------------------------------------------------------------
     def set_state(self, w_old: np.ndarray) -> None:
@@ -246,10 +235,8 @@ class DistributedFlow:
         mass = v.getSubVector(self.is_p).copy()
         friction = v.getSubVector(self.is_v).copy()
         friction.reciprocal()
-        lo, _ = p.owned
         fixed_v = self.fixed_owned[np.isin(self.fixed_owned, p.velocity)]
-        local_v = np.searchsorted(p.velocity, fixed_v)
-        friction.getArray()[local_v] = 0.0
+        friction.getArray()[np.searchsorted(p.velocity, fixed_v)] = 0.0
         return mass, friction
 
     def _ksp(self, mat, x, rho, params):
@@ -284,20 +271,35 @@ class DistributedFlow:
         ksp.setFromOptions()
         return ksp
 
+    def _transposed_ksp(self):
+        """The fieldsplit FGMRES of ``J_c^T`` at the last converged solve, kept (a coupled
+        adjoint's sweeps solve several times there) until :meth:`release_transpose`."""
+        if self.transposed is None or self.transposed[0] is not self.linearized_at:
+            self.release_transpose()
+            mat_t = self.mat.transpose(_petsc().Mat())          # (petsc4py: no argument = in place)
+            self.transposed = (self.linearized_at, mat_t, self._ksp(mat_t, *self.linearized_at))
+        return self.transposed[2]
+
+    def release_transpose(self) -> None:
+        """Free the transposed matrix and its hierarchies (after an adjoint, before a solve)."""
+        if self.transposed is not None:
+            self.transposed[2].destroy()
+            self.transposed[1].destroy()
+            self.transposed = None
+
     def solve_transpose(self, b: "PETSc.Vec", rtol: float = 1e-11) -> "PETSc.Vec":
         """``lam`` with ``J_c^T lam = b`` on the converged constrained Jacobian of the last
         :meth:`solve` (``b``'s fixed entries zeroed, so ``lam``'s are zero: the serial
         adjoint's homogenized multipliers), to ``|b - J_c^T lam| <= rtol |b|``: FGMRES with
         the Schur fieldsplit of the explicitly transposed matrix ``J_c^T`` (one more matrix
-        while the adjoint runs; freed with its hierarchies on return). PETSc 3.18's transposed
-        fieldsplit application (``KSPSolveTranspose``) stagnates at 1e-4 after 1000
+        while the adjoint runs, kept with its hierarchies: :meth:`_transposed_ksp`). PETSc
+        3.18's ``KSPSolveTranspose`` with the fieldsplit stagnates at 1e-4 after 1000
         iterations on a Navier-Stokes Jacobian, hence the explicit transpose."""
         if self.linearized_at is None:
             raise NumericalError("distributed flow adjoint: no converged solve to transpose", {})
         lo, _ = self.part.owned
         b.getArray()[self.fixed_owned - lo] = 0.0
-        mat_t = self.mat.transpose(_petsc().Mat())          # (petsc4py: no argument = in place)
-        ksp = self._ksp(mat_t, *self.linearized_at)
+        ksp = self._transposed_ksp()
         ksp.setTolerances(rtol=rtol, atol=0.0, max_it=1000)
         lam = self.mat.createVecRight()
         ksp.solve(b, lam)
@@ -309,8 +311,6 @@ class DistributedFlow:
         log.info("FGMRES transposed (fieldsplit): %d iterations, reason %d, |b - J^T lam|/|b| = %.2e",
                  its, reason, relative)
         self.transposed_iterations = its
-        ksp.destroy()
-        mat_t.destroy()
         check.destroy()
         if reason < 0 or relative > 10 * rtol:
             raise NumericalError("distributed flow adjoint: transposed Krylov solve failed",
@@ -327,6 +327,7 @@ class DistributedFlow:
         flow, s = self.flow, self.flow.settings
         t0 = time.perf_counter()
         start = self.w.copy() if warm else None
+        self.release_transpose()
         self.linearized_at = None
         self.initial()                  # the force scale: |F| of the all-fluid boundary-value state
         scale = max(self.assemble(self.w, x, None, flow.density, jacobian=False, params=params),

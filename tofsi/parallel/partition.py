@@ -54,12 +54,7 @@ class SlabPartition:
         column = flow.grid()[:, 0]                                                       # (n,) fine column
         owner = owner_of_column[np.minimum(column // 2, mesh.nx - 1)]                    # (n,)
         is_pressure = flow.pressure_dofs
-        key = owner * 2 + is_pressure                        # rank-major, velocity before pressure
-        order = np.lexsort((np.arange(flow.size), key))      # stable: the flow's order within a group
-        new_of_old = np.empty(flow.size, dtype=np.int64)
-        new_of_old[order] = np.arange(flow.size)
-        counts = np.bincount(owner, minlength=ranks)
-        ranges = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        new_of_old, ranges = rank_numbering(owner, ranks, is_pressure)     # velocity before pressure
         mine = owner == rank
         halo = (element_column >= max(cuts[rank] - 1, 0)) & (element_column < cuts[rank + 1])
         return cls(rank, ranks, np.flatnonzero(owner_of_column[element_column] == rank), new_of_old, ranges,
@@ -69,3 +64,30 @@ class SlabPartition:
     @property
     def owned(self) -> tuple[int, int]:
         return int(self.ranges[self.rank]), int(self.ranges[self.rank + 1])
+
+
+def rank_numbering(owner: np.ndarray, ranks: int, key: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(new_of_old (n,), ranges (ranks + 1,))``: dofs renumbered rank by rank (within a rank by
+    ``key``, then in their own order), so each rank's owned dofs are contiguous."""
+    order = np.lexsort((np.arange(owner.size), owner * 2 + (0 if key is None else key)))
+    new_of_old = np.empty(owner.size, dtype=np.int64)
+    new_of_old[order] = np.arange(owner.size)
+    counts = np.bincount(owner, minlength=ranks)
+    return new_of_old, np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+
+def row_counts(dofs: np.ndarray, lo: int, hi: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Non-zeros of each owned row ``[lo, hi)`` in the diagonal and off-diagonal blocks
+    ``((m,), (m,))`` of a matrix assembled from elements with dofs ``(E_h, k)`` (new numbering;
+    every element touching an owned dof): PETSc's exact preallocation."""
+    k = dofs.shape[1]
+    owned = (dofs >= lo) & (dofs < hi)
+    rows = np.repeat(dofs[owned], k)
+    cols = np.repeat(dofs, owned.sum(axis=1), axis=0).reshape(-1)                # each owned row: k cols
+    pairs = np.unique((rows - lo) * size + cols)
+    del rows, cols
+    row, col = pairs // size, pairs % size
+    inside = (col >= lo) & (col < hi)
+    m = hi - lo
+    return (np.bincount(row[inside], minlength=m).astype(np.int32),
+            np.bincount(row[~inside], minlength=m).astype(np.int32))
