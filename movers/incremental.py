@@ -49,6 +49,7 @@ from movers.base import MoveReport, element_apply, quality_record
 from movers.problem import MotionProblem
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
+from tofsi.linalg.superlu import release_free_pages
 
 ElementMatrices = Callable[[np.ndarray], np.ndarray]
 """Current corners ``(Em, 4, 2)`` -> unscaled element matrices ``(Em, 8, 8)``; complex-safe."""
@@ -148,7 +149,11 @@ class IncrementDerivatives:
     the assembled ``K_k dx_k``, and ``W K_k`` of the quads with a fixed dof (the prescribed
     motion's share). ``record``: what the move kept (its element matrices and factorizations;
     else they are made again). Memory: per increment a factorization of the mesh system and
-    one sparse matrix of its pattern.
+    one sparse matrix of its pattern. The missing factorizations are made together on first use
+    (every sweep needs them all), after the heap's free pages went back to the system
+    (:func:`~tofsi.linalg.superlu.release_free_pages`: SuperLU's arrays, sized from a fill
+    estimate 5-14 times what they use, would else make memory earlier arrays wrote resident
+    again). Nothing here refers back to the move's result: the store goes with it.
     """
 
     def __init__(self, problem: MotionProblem, states: list[np.ndarray], kernel: IncrementKernel,
@@ -159,6 +164,7 @@ class IncrementDerivatives:
         self.edge = np.flatnonzero(bc.is_fixed[dofs].any(axis=1))   # quads with a fixed dof
         self.dofs_edge = dofs[self.edge]
         self.factorize = factorize
+        self.solvers: list = [None if record is None else record.factors.get(k) for k in range(len(states) - 1)]
         self.increments, self.systems = [], []
         for k in range(len(states) - 1):
             x_k, dx = states[k], states[k + 1] - states[k]
@@ -168,15 +174,16 @@ class IncrementDerivatives:
             WD = bc.row_matrix(scale * kernel.force_derivative(Xe, dx_e)) if k > 0 else None  # x_0 = 0
             forces = np.einsum("eab,eb->ea", K0, dx_e)
             Kdx = None if blend is None else assemble_vector(dofs, f[:, None] * forces, dx.size)
-            self.systems.append(system(bc, K0 * f[:, None, None], dofs, blend))
+            self.systems.append(None if self.solvers[k] is not None else system(bc, K0 * f[:, None, None], dofs, blend))
             self.increments.append(_Stored(dx, (scale * K0)[self.edge] if self.edge.size else None,
                                            WD, forces, Kdx))
-        self.solvers: list = [None if record is None else record.factors.get(k) for k in range(len(self.increments))]
 
     def _factors(self, k: int):
-        if self.solvers[k] is None:
-            self.solvers[k] = self.factorize(self.systems[k])
-        self.systems[k] = None                  # the factors are what is kept
+        if self.systems is not None:            # first use: every sweep needs them all
+            if None in self.solvers:
+                release_free_pages()
+            self.solvers = [self.factorize(A) if s is None else s for s, A in zip(self.solvers, self.systems)]
+            self.systems = None                 # the factors are what is kept
         return self.solvers[k]
 
     def solve(self, k: int, b: np.ndarray) -> np.ndarray:
@@ -212,6 +219,7 @@ def derivatives_of(problem: MotionProblem, result, kernel: IncrementKernel) -> I
     if result.derivatives is None:
         result.derivatives = IncrementDerivatives(problem, result.trajectory, kernel, result.blend,
                                                   result.solver.factorize, result.record)
+        result.record = None                    # in the store now (its matrices are not kept twice)
     return result.derivatives
 
 

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 import tofsi
 from tofsi.coupling.coupled import CoupledModel
 from tofsi.core.errors import InputError
-from tofsi.linalg import AMGSolver, DirectSolver, RecyclingSolver, backends, nested_dissection
+from tofsi.linalg import AMGSolver, DirectSolver, RecyclingSolver, backends, nested_dissection, superlu
 from tofsi.physics.flow import Flow
 from tofsi.physics.structure import Structure
 
@@ -315,3 +315,37 @@ def test_a_direct_solve_spends_no_refinement_past_round_off():
     solver.factorization = Perturbed()
     solver.solve(b)
     assert Counting.calls == 3                             # refined twice: the backward error was large
+
+
+
+def resident_bytes() -> int:
+    return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+RELEASE_CHECK = """
+import numpy as np
+from pathlib import Path
+from tofsi.linalg import superlu
+resident = lambda: int(Path("/proc/self/statm").read_text().split()[1]) * 4096
+big = np.ones(2**21)         # 16 MB, freed from its own mapping: glibc's heap then serves mid-size arrays
+del big
+pairs = [(np.ones(2**20), np.ones(2**13)) for _ in range(30)]    # 8 MB each, a small one between
+pins = [small for _, small in pairs]
+del pairs
+written = resident()
+superlu.release_free_pages()
+print((written - resident()) / 1e6)
+"""
+
+
+@pytest.mark.skipif(not superlu.GLIBC or not Path("/proc/self/statm").exists(),
+                    reason="glibc's heap and /proc's resident set")
+def test_release_free_pages_gives_the_heaps_written_free_memory_back():
+    """Memory the heap has written and freed stays resident, and glibc hands it to the next
+    allocations: SuperLU's factors, sized from a fill estimate 5-14 times what they use, would
+    make all of it resident again (a move in increments keeps one per increment; issue 32's
+    spring grew to 8 GB at 80 x 40). :func:`~tofsi.linalg.superlu.release_free_pages` gives it
+    back first: 240 MB written and freed between live arrays leave the resident set (a fresh
+    process: the heap's state is its own)."""
+    out = subprocess.run([sys.executable, "-c", RELEASE_CHECK], capture_output=True, text=True, check=True)
+    assert float(out.stdout) > 200, out.stdout

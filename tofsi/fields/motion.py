@@ -211,9 +211,11 @@ class MoveLinearization(ExplicitLinearization):
     def coupling(self, other):
         if other != "u":
             return None
-        motion, result, size = self.block.motion, self.result, self.block.size
+        motion, result, size, vjp = self.block.motion, self.result, self.block.size, self.vjp
+        # the map's products must not reach back to this linearization (a cycle would leave the
+        # move's stored increments, factorizations included, to the cyclic garbage collector)
         return self.kept("D_u", lambda: LinearMap(
-            (size, size), lambda v: -motion.jvp(result, v), lambda w: -self.vjp(w)[0]["u"]))
+            (size, size), lambda v: -motion.jvp(result, v), lambda w: -vjp(w)[0]["u"]))
 
 
 class MotionBlock(FieldBlock):

@@ -9,9 +9,21 @@ a new factorization gathers ``B.data = A.data[take]`` instead of two fancy
 index operations and a format conversion. Diagonal pivots are kept unless
 below 1e-6 of the column's largest entry (the ordering's low fill; saddle-point
 systems need their pressures ordered last within each block).
+
+SuperLU sizes its factors' arrays from an estimate of the fill (``sp_ienv(6)``:
+30 times the matrix's non-zeros for ``L`` and for ``U``, expanded if short,
+never shrunk), 5-14 times what the factors use on the meshes here, and writes
+only part of it. Fresh mappings leave the rest out of memory; but glibc's heap
+serves them from memory earlier arrays wrote and freed, which stays resident.
+A caller that keeps many factorizations (a move in increments keeps one per
+increment for its derivatives) first gives those pages back,
+:func:`release_free_pages`.
 """
 
 from __future__ import annotations
+
+import ctypes
+import ctypes.util
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,6 +36,27 @@ INDEX_BYTES = 4
 
 def unavailable() -> str | None:
     return None                                    # part of SciPy
+
+
+def _glibc():
+    """glibc (None elsewhere: macOS, musl)."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.gnu_get_libc_version        # glibc only
+        return libc if hasattr(libc, "malloc_trim") else None
+    except (OSError, AttributeError):
+        return None
+
+
+_LIBC = _glibc()
+GLIBC = _LIBC is not None
+
+
+def release_free_pages() -> None:
+    """Give the heap's free pages back to the system (glibc's ``malloc_trim``; a no-op
+    elsewhere), so that what is allocated next starts from pages nothing has written."""
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
 
 
 class Backend:
