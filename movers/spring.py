@@ -18,6 +18,7 @@ fixed triangulation.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +26,7 @@ import numpy as np
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
 from movers.incremental import IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp, run_increments
-from movers.spring_kernel import DIAGONALS, quad_force_derivative, quad_stiffness
+from movers.spring_kernel import DIAGONALS, TriangleSplit, quad_force_derivative, quad_stiffness
 from tofsi.mesh import quality
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError
@@ -54,8 +55,9 @@ class SpringMover(Mover):
         """Unscaled quad matrices for the diagonal codes (complex-safe) and their forces' shape
         derivative (closed form)."""
         tsc = self.params.torsion_scale
-        return IncrementKernel(lambda Xe: quad_stiffness(Xe, codes, tsc),
-                               lambda Xe, v: quad_force_derivative(Xe, v, codes, tsc))
+        split = functools.cache(lambda: TriangleSplit(codes))         # on first use
+        return IncrementKernel(lambda Xe: quad_stiffness(Xe, split(), tsc),
+                               lambda Xe, v: quad_force_derivative(Xe, v, split(), tsc))
 
     @property
     def path_dependent(self) -> bool:

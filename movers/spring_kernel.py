@@ -44,6 +44,7 @@ gradient of the angle ``theta_r``) give
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 DIAGONALS = ("1-3", "2-4", "both")
 TRIANGLES = {"1-3": ((0, 1, 2), (0, 2, 3)), "2-4": ((0, 1, 3), (1, 2, 3))}
@@ -143,40 +144,55 @@ def triangle_force_derivative(P: np.ndarray, v: np.ndarray, torsion_scale: float
     return D + torsion_scale * np.einsum("tri,trj->tij", R, right)
 
 
-def _on_triangles(Xe: np.ndarray, diagonal: np.ndarray, triangle_fn, v: np.ndarray | None = None) -> np.ndarray:
+class TriangleSplit:
+    """How quads with diagonal codes ``(E,)`` (0 = "1-3", 1 = "2-4", 2 = "both") split into
+    triangles, built once per set of codes: per triangle its corners' rows of ``Xe.reshape(-1, 2)``
+    ``(T, 3)``, its dofs' entries of ``v.reshape(-1)`` ``(T, 6)``, and the sparse map (weight 1,
+    or 1/2 for both diagonals) from the triangles' ``(T, 6, 6)`` to the quads' ``(E, 8, 8)``."""
+
+    def __init__(self, diagonal: np.ndarray):
+        diagonal = np.asarray(diagonal)
+        self.n_quads = diagonal.size
+        quads, corners, weights = [], [], []
+        for code, name in enumerate(("1-3", "2-4")):
+            weight = np.where(diagonal == code, 1.0, np.where(diagonal == 2, 0.5, 0.0))
+            q = np.flatnonzero(weight > 0)
+            for tri in TRIANGLES[name]:
+                quads.append(q)
+                corners.append(np.broadcast_to(np.array(tri), (q.size, 3)))
+                weights.append(weight[q])
+        quad, corner, weight = np.concatenate(quads), np.concatenate(corners), np.concatenate(weights)
+        local = np.stack([2 * corner, 2 * corner + 1], axis=-1).reshape(-1, 6)     # the quad's dofs
+        self.corners = 4 * quad[:, None] + corner
+        self.dofs = 8 * quad[:, None] + local
+        rows = (64 * quad[:, None, None] + 8 * local[:, :, None] + local[:, None, :]).ravel()
+        self.scatter = sp.csr_matrix((np.repeat(weight, 36), (rows, np.arange(rows.size))),
+                                     shape=(64 * self.n_quads, rows.size))
+
+
+def _on_triangles(Xe: np.ndarray, split: "TriangleSplit", triangle_fn, v: np.ndarray | None = None) -> np.ndarray:
     """``(E, 8, 8)``: per quad the weighted sum of ``triangle_fn`` over its triangles (one call for
     all of them), each placed at its triangle's quad dofs. ``triangle_fn(P (T, 3, 2), v (T, 6))``;
     ``v`` ``(E, 8)`` per quad, or None."""
-    E = Xe.shape[0]
-    parts = []                       # (quads, weights, the triangle's quad dofs)
-    for code, name in enumerate(("1-3", "2-4")):
-        weight = np.where(diagonal == code, 1.0, np.where(diagonal == 2, 0.5, 0.0))
-        quads = np.flatnonzero(weight > 0)
-        if quads.size:
-            parts += [(quads, weight[quads], tri) for tri in TRIANGLES[name]]
-    P = np.concatenate([Xe[quads][:, tri, :] for quads, _, tri in parts])
-    dofs = [np.ravel([(2 * a, 2 * a + 1) for a in tri]) for _, _, tri in parts]
-    vt = None if v is None else np.concatenate([v[quads][:, idx] for (quads, _, _), idx in zip(parts, dofs, strict=True)])
-    Kt = triangle_fn(P, vt).reshape(len(P), 36)
-    K = np.zeros((E, 64), dtype=Kt.dtype)
-    start = 0
-    for (quads, weight, _), idx in zip(parts, dofs, strict=True):
-        stop = start + quads.size
-        K[quads[:, None], (8 * idx[:, None] + idx[None, :]).ravel()] += weight[:, None] * Kt[start:stop]
-        start = stop
-    return K.reshape(E, 8, 8)
+    P = np.asarray(Xe).reshape(-1, 2)[split.corners]
+    vt = None if v is None else np.asarray(v).reshape(-1)[split.dofs]
+    return (split.scatter @ triangle_fn(P, vt).reshape(-1)).reshape(split.n_quads, 8, 8)
+
+
+def _split(diagonal) -> TriangleSplit:
+    return diagonal if isinstance(diagonal, TriangleSplit) else TriangleSplit(diagonal)
 
 
 def quad_stiffness(Xe: np.ndarray, diagonal: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
     """Spring stiffness ``(E, 8, 8)`` of quads ``Xe`` ``(E, 4, 2)`` (complex-safe).
 
-    diagonal : (E,) codes 0 = "1-3", 1 = "2-4", 2 = "both"
+    diagonal : (E,) codes 0 = "1-3", 1 = "2-4", 2 = "both", or their :class:`TriangleSplit`
     """
-    return _on_triangles(Xe, diagonal, lambda P, _: triangle_stiffness(P, torsion_scale))
+    return _on_triangles(Xe, _split(diagonal), lambda P, _: triangle_stiffness(P, torsion_scale))
 
 
 def quad_force_derivative(Xe: np.ndarray, v: np.ndarray, diagonal: np.ndarray,
                           torsion_scale: float = 1.0) -> np.ndarray:
     """``d(quad_stiffness(Xe) v)/dXe`` ``(E, 8, 8)`` (last axis the corner coordinate ``2 a + i``)
     for quad motions ``v`` ``(E, 8)`` held fixed; ``diagonal`` as :func:`quad_stiffness`."""
-    return _on_triangles(Xe, diagonal, lambda P, vt: triangle_force_derivative(P, vt, torsion_scale), v)
+    return _on_triangles(Xe, _split(diagonal), lambda P, vt: triangle_force_derivative(P, vt, torsion_scale), v)
