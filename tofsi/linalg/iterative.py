@@ -68,7 +68,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from tofsi.core.errors import NumericalError
-from tofsi.linalg.amg import smoothed_aggregation
+from tofsi.linalg.amg import ONE_SWEEP, smoothed_aggregation
 from tofsi.linalg.block_matrix import SaddlePointMatrix
 from tofsi.linalg.krylov import gmres
 
@@ -101,7 +101,9 @@ def asymmetry(A: sp.csr_matrix, chunk: int = 1 << 20) -> float:
 
 
 def _amg(M: sp.csr_matrix, near_null=None, symmetric: bool = False):
-    return smoothed_aggregation(M, near_null, symmetric)
+    """Smoothed aggregation on ``M`` whose V-cycle smooths by one Gauss-Seidel sweep on each side
+    (:data:`tofsi.linalg.amg.ONE_SWEEP`: a quarter less time per GMRES iteration at 180 x 90)."""
+    return smoothed_aggregation(M, near_null, symmetric, ONE_SWEEP)
 
 
 class BlockSaddlePreconditioner:
