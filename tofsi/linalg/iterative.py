@@ -11,7 +11,11 @@ is preconditioned by its block upper triangle with approximate blocks
         | 0   S~  |
 
 (Elman, Silvester & Wathen 2014, ch. 9). ``A~^{-1}`` is one V-cycle of
-smoothed-aggregation AMG (pyamg) on ``A``; ``S~^{-1}`` approximates the
+smoothed-aggregation AMG (pyamg) on ``A`` with one Gauss-Seidel sweep on
+each side (:data:`tofsi.linalg.amg.ONE_SWEEP`; the iteration counts quoted
+below for 80 x 40 were measured with pyamg's symmetric sweeps, which take a
+few percent fewer iterations at about 1.6 times the cost of a cycle);
+``S~^{-1}`` approximates the
 inverse Schur complement ``S = -B A^{-1} B^T`` by the Cahouet-Chabard sum
 
     -S~^{-1} = M_mu^{-1} + L_alpha^{-1},
