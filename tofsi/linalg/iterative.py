@@ -13,8 +13,9 @@ is preconditioned by its block upper triangle with approximate blocks
 (Elman, Silvester & Wathen 2014, ch. 9). ``A~^{-1}`` is one V-cycle of
 smoothed-aggregation AMG (pyamg) on ``A`` with one Gauss-Seidel sweep on
 each side (:data:`tofsi.linalg.amg.ONE_SWEEP`; the iteration counts quoted
-below for 80 x 40 were measured with pyamg's symmetric sweeps, which take a
-few percent fewer iterations at about 1.6 times the cost of a cycle);
+below for 80 x 40 were measured with pyamg's symmetric sweeps, which take
+5-30 % fewer iterations at about 1.6 times the cost of a cycle;
+``docs/parallel.md``, "Smoothing");
 ``S~^{-1}`` approximates the
 inverse Schur complement ``S = -B A^{-1} B^T`` by the Cahouet-Chabard sum
 
