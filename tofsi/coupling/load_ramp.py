@@ -37,7 +37,7 @@ converges by that Newton alone. The path is one of two parameters:
   prescribed velocities are linear in ``lambda``). From the last state unchanged,
   a Newton step, whose flow matrix eliminates the Dirichlet columns, would move the
   inflow alone and not the flow behind it: the large scene's step from half its
-  inflow to all of it took 14 Newton steps at 80 x 40, 10 from the secant. The
+  inflow to all of it took 14 Newton iterations at 80 x 40, 10 from the secant. The
   structure and the mesh start where the last step left them (their secant
   inverts elements there).
 
