@@ -131,3 +131,25 @@ def test_the_densities_carry_a_stage_change_the_direct_newton_cannot(one_way_sta
         assert np.abs(getattr(state, f) - ref).max() <= 1e-6 * np.abs(ref).max()
     with pytest.raises(NumericalError):                              # teeth: without the path it fails
         next_stage("coupled.max_iter=6", "coupled.load_ramp=false")
+
+
+def test_a_ramped_solve_leaves_its_failed_attempt_to_no_cycle(one_way_start):
+    """The failed full-inflow attempt is kept as its message: its exception's traceback would
+    hold the ramp's frame, which held the exception -- a cycle that kept the failed attempt's
+    states, moves and factorizations until Python's rare full collections (issue 32)."""
+    import collections
+    import gc
+    gamma, guess = one_way_start
+    gc.collect()
+    gc.disable()
+    gc.set_debug(gc.DEBUG_SAVEALL)
+    try:
+        _, state = first_two_way(gamma, guess, "structure.youngs_modulus=2e3")
+        gc.collect()
+        cyclic = collections.Counter(type(o).__name__ for o in gc.garbage)
+    finally:
+        gc.set_debug(0)
+        gc.garbage.clear()
+        gc.enable()
+    assert state.reports["load_ramp"]["full_load_failure"]           # teeth: the attempt failed
+    assert not {"NumericalError", "State", "traceback"} & set(cyclic), cyclic

@@ -83,7 +83,8 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
             return solve(params, guess, rho, direct=True)
         return solve(params, guess, rho)
     except NumericalError as direct:
-        first_failure = direct
+        first_failure = str(direct)     # the message only: the exception's traceback would hold
+                                        # this frame (a cycle keeping the failed attempt's states)
     if _solved_elsewhere(guess, fields, rho):
         log.info("coupled solve failed from the previous design's state (%s); continuing in the densities "
                  "from that design's", first_failure)
@@ -91,7 +92,7 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
         state, report = _continue(lambda t, start: solve(params, start, (1.0 - t) * rho0 + t * rho),
                                   guess, FIRST_DENSITY_STEP, MIN_DENSITY_STEP,
                                   "continuation in the densities from the previous design's")
-        state.reports["density_ramp"] = {**report, "full_load_failure": str(first_failure)}
+        state.reports["density_ramp"] = {**report, "full_load_failure": first_failure}
         return state
     log.info("coupled solve failed at the full load (%s); ramping the inflow from rest", first_failure)
     try:
@@ -104,11 +105,11 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
             f"load continuation stopped at {err.diagnostic['reached']:.4g} of the inflow (a step of "
             f"{err.diagnostic['step']:.3g} to {err.diagnostic['failed']:.4g} failed: {err.__cause__})",
             {**err.diagnostic, "load": err.diagnostic["reached"], "failed_load": err.diagnostic["failed"],
-             "load_steps": err.diagnostic["steps"], "full_load_failure": str(first_failure)},
+             "load_steps": err.diagnostic["steps"], "full_load_failure": first_failure},
             state=err.state)
         failure.accepted = err.accepted
         raise failure from err.__cause__
-    state.reports["load_ramp"] = {**report, "full_load_failure": str(first_failure)}
+    state.reports["load_ramp"] = {**report, "full_load_failure": first_failure}
     return state
 
 
