@@ -4,7 +4,9 @@
   100 % stretch (nu = 0, so P22 = 0 and the clamp is compatible): the solve must return
   the homogeneous field, through load steps from zero;
 * warm starts converge to the same displacement with fewer iterations;
-* a load the void material cannot carry fails loudly with the worst element;
+* a load the void material cannot carry fails loudly with the worst element; without load
+  steps (a coupled solve's direct attempt) a load Newton alone cannot reach fails after that
+  Newton, where the load steps carry it;
 * the energy interpolation carries the same load through linear void elements.
 """
 
@@ -103,6 +105,21 @@ def test_plain_simp_crushes_the_void_and_fails_loudly_with_the_worst_element():
     assert rho[d["worst_element"]] == 0.0 and 0.0 < d["min_det_F"] < 0.05
     assert d["centroid"][0] > 0.85                             # between the beam and the wall
     assert "smallest det F" in str(err.value)
+
+
+def test_without_load_steps_a_load_newton_alone_cannot_reach_fails_after_that_newton():
+    """Plain SIMP's beam near the wall: Newton from zero stalls; with load steps the solve
+    converges (2 cutbacks, 136 Newton iterations), without them it fails after the one Newton
+    (``max_newton`` iterations), naming the worst element."""
+    mesh, st, rho, f = beam_near_wall(interpolation="simp")
+    simp = SIMP(1e3, 1e-3, 3.0)
+    with pytest.raises(NumericalError) as err:
+        st.solve(f, rho, simp, load_steps=False)
+    d = err.value.diagnostic
+    assert "without load steps" in str(err.value) and d["newton_iterations"] == 25 and d["cutbacks"] == 0
+    assert {"worst_element", "min_det_F", "centroid"} <= set(d)
+    stepped = st.solve(f, rho, simp)
+    assert stepped.report.converged and stepped.report.cutbacks > 0
 
 
 def test_the_energy_interpolation_carries_the_load_without_cutbacks():

@@ -4,10 +4,12 @@ The large-deformation scene at 40 x 20 after its three one-way stages (the desig
 state the optimizer carries into the first two-way stage). Truths: a converged state satisfies
 every block's residual of the full problem (the caller's densities, the full inflow, the stage's
 record) to the coupling tolerance; the path it took is in its report; where the direct Newton
-from the one-way state converges, no ramp is taken (with a structure stiff enough that it does),
-and where it does not (a softer one), the inflow is cut back to half and no further than needed,
-not ramped up from rest in small steps. A stage change too large for a short direct Newton is
-carried by the densities' path to the state a long direct Newton reaches.
+from the one-way state converges, no ramp is taken (with a structure stiff enough that it does:
+its structure by Newton alone, the direct attempt takes no load steps), and where it does not (a
+softer one), the inflow is cut back to half and no further than needed, not ramped up from rest
+in small steps. Each step of the ramp starts its flow on the secant through the last two states,
+which holds the step's own inflow (hand values). A stage change too large for a short direct
+Newton is carried by the densities' path to the state a long direct Newton reaches.
 """
 
 import tempfile
@@ -17,6 +19,8 @@ import pytest
 
 import tofsi
 from tofsi.coupling.coupled import continuation
+from tofsi.coupling.load_ramp import secant
+from tofsi.core.blocks import Continuation, State
 from tofsi.core.errors import NumericalError
 from tofsi.optimization.optimize import Optimizer
 
@@ -57,6 +61,7 @@ def test_a_first_two_way_solve_that_needs_no_ramp_goes_straight_from_the_one_way
     gamma, guess = one_way_start
     problem, state = first_two_way(gamma, guess, "structure.youngs_modulus=4e3")
     assert "load_ramp" not in state.reports and "density_ramp" not in state.reports
+    assert state.reports["structure"]["load_steps"] == 0             # the direct attempt: Newton alone
     assert len(state.reports["coupling"]["history"]) <= 12          # a few warm iterations' Newton steps
     assert np.abs(state.x).max() > 0.02                              # the mesh moved (2 % of the channel)
     assert_solves_the_full_problem(problem, state, gamma)
@@ -73,6 +78,33 @@ def test_a_first_two_way_solve_that_needs_the_ramp_cuts_back_from_the_full_inflo
     assert_solves_the_full_problem(problem, state, gamma)
     with pytest.raises(NumericalError):                              # teeth: without the ramp it fails
         first_two_way(gamma, guess, "structure.youngs_modulus=2e3", "coupled.load_ramp=false")
+
+
+def test_a_ramp_step_starts_its_flow_on_the_secant_which_holds_the_steps_inflow(one_way_start):
+    """From rest the first step has no start (its sweep); the second starts its flow at the
+    first's scaled by t / t_1, later ones on the secant; the structure and the mesh where the
+    last step left them. The flow's prescribed values are linear in the load, so the start's
+    fixed dofs hold the step's inflow (a Newton step, whose flow matrix eliminates the
+    Dirichlet columns, need not move them)."""
+    gamma, guess = one_way_start
+    problem = tofsi.Problem(load("beam_in_channel_optimization_large", *COARSE))
+    flow = problem.model.flow
+    fixed = flow.bc.fixed
+    rng = np.random.default_rng(1)
+
+    def state_at(t):                         # a flow with the inflow at load t, anything inside
+        w = rng.standard_normal(flow.size)
+        w[fixed] = flow.boundary_values(Continuation(load=t))[fixed]
+        return State(rho=guess.rho, fields={"w": w, "u": rng.standard_normal(4), "x": rng.standard_normal(4)})
+    assert secant([(0.0, None)], 0.5, ("w",)) is None
+    half, three_quarters = state_at(0.5), state_at(0.75)
+    start = secant([(0.0, None), (0.5, half)], 1.0, ("w",))
+    np.testing.assert_array_equal(start.w, 2.0 * half.w)
+    assert start.u is half.u and start.x is half.x
+    start = secant([(0.0, None), (0.5, half), (0.75, three_quarters)], 0.875, ("w",))
+    np.testing.assert_allclose(start.w, three_quarters.w + 0.5 * (three_quarters.w - half.w), rtol=1e-15)
+    np.testing.assert_allclose(start.w[fixed], flow.boundary_values(Continuation(load=0.875))[fixed],
+                               rtol=1e-14, atol=1e-15)
 
 
 def test_the_densities_carry_a_stage_change_the_direct_newton_cannot(one_way_start):

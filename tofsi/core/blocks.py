@@ -193,6 +193,7 @@ class FieldBlock(ABC):
     has_residual: bool = True          # False: an explicit map without a residual form
     slow_couplings: tuple[str, ...] = ()   # couplings a quasi-Newton solve may keep fixed
     matrix_free_couplings: tuple[str, ...] = ()   # couplings known by their products only (no LU of the whole)
+    own_continuation: bool = False     # solve() continues in a load of its own, and takes ``direct`` to skip it
 
     @property
     @abstractmethod
@@ -224,7 +225,11 @@ class FieldBlock(ABC):
 
         guess : a starting value; previous : this block's linearization from an
         earlier solve of the same coupled solve (its factorization may be
-        reused as a preconditioner); report : a JSON-friendly dict.
+        reused as a preconditioner); report : a JSON-friendly dict. A block with
+        ``own_continuation`` (its solve steps a load of its own when Newton fails: a
+        finite-strain structure) also takes ``direct=True`` from a caller that carries the
+        coupled problem along a path of its own when this solve fails (the inflow ramp after
+        a direct attempt from a one-way state): no continuation of its own, fail fast.
         """
 
     def residual_scale(self, fields: Fields, rho, params: Continuation, lin: Linearization) -> float:

@@ -218,8 +218,10 @@ class BlockSystem:
 
     # ---- forward solve ------------------------------------------------------------------
     def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,
-              progress=None) -> State:
-        """Every field for densities ``rho``; ``guess`` (a state) warm-starts the solvers."""
+              progress=None, direct: bool = False) -> State:
+        """Every field for densities ``rho``; ``guess`` (a state) warm-starts the solvers;
+        ``direct``: the blocks' own solves without their own continuation (``FieldBlock.solve``),
+        for a caller that continues along a path of its own when this fails."""
         fields = {name: None for name in self.names}
         if guess is not None:
             for name in self.names:
@@ -228,36 +230,38 @@ class BlockSystem:
         state = State(rho=rho, params=params)
         for comp in self.components:
             if len(comp) == 1:
-                fields[comp[0]] = self._solve_block(comp[0], fields, state, progress)
+                fields[comp[0]] = self._solve_block(comp[0], fields, state, progress, direct=direct)
             elif self.method_for(comp) == "monolithic":
-                solve_monolithic(self, comp, fields, state)
+                solve_monolithic(self, comp, fields, state, direct)
             else:
-                self._partitioned(comp, fields, state, progress)
+                self._partitioned(comp, fields, state, progress, direct)
         state.fields = fields
         state.converged = True
         return state
 
-    def _solve_block(self, name, fields, state, progress=None, previous=None):
+    def _solve_block(self, name, fields, state, progress=None, previous=None, direct=False):
         block = self.by_name[name]
         value, lin, report = block.solve(fields, state.rho, state.params, guess=fields.get(name),
-                                         previous=previous, progress=progress)
+                                         previous=previous, progress=progress,
+                                         **({"direct": True} if direct and block.own_continuation else {}))
         state.linearizations[name] = lin
         if report is not None and block.report_name:
             state.reports[block.report_name] = report
         return value
 
-    def start(self, comp, fields, state, progress=None) -> None:
+    def start(self, comp, fields, state, progress=None, direct=False) -> None:
         """Fill the fields of the cycle ``comp`` that have no guess: one sweep in order (each block
-        solved with the latest values of the others, absent ones at their initial value)."""
+        solved with the latest values of the others, absent ones at their initial value;
+        ``direct``: without the blocks' own continuation)."""
         if all(fields[n] is not None for n in comp):
             return
         for name in comp:
             if fields[name] is None:
                 fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
         for name in comp:
-            fields[name] = self._solve_block(name, fields, state, progress)
+            fields[name] = self._solve_block(name, fields, state, progress, direct=direct)
 
-    def _partitioned(self, comp, fields, state, progress) -> None:
+    def _partitioned(self, comp, fields, state, progress, direct=False) -> None:
         s = self.settings
         relax = self.relaxed_field(comp)
         for name in comp:
@@ -268,8 +272,8 @@ class BlockSystem:
         for k in range(s.max_iter):
             for name in comp[:at]:
                 fields[name] = self._solve_block(name, fields, state, progress,
-                                                 state.linearizations.get(name))
-            new = self._solve_block(relax, fields, state, progress, state.linearizations.get(relax))
+                                                 state.linearizations.get(name), direct)
+            new = self._solve_block(relax, fields, state, progress, state.linearizations.get(relax), direct)
             change = float(np.linalg.norm(new - fields[relax]) / max(np.linalg.norm(new), 1e-300))
             history.append({"iteration": k, "relative_change": change})
             log.info("partitioned coupling %d: relative change of %s %.3e", k, relax, change)
@@ -277,11 +281,11 @@ class BlockSystem:
             fields[relax] = new if converged else accelerator.next(fields[relax], new)
             for name in comp[at + 1:]:
                 fields[name] = self._solve_block(name, fields, state, progress,
-                                                 state.linearizations.get(name))
+                                                 state.linearizations.get(name), direct)
             if converged:
                 for name in comp[:at]:              # consistent with the final later fields
                     fields[name] = self._solve_block(name, fields, state, progress,
-                                                     state.linearizations.get(name))
+                                                     state.linearizations.get(name), direct)
                 state.reports["coupling"] = {"method": "partitioned", "history": history}
                 return
         raise NumericalError(f"partitioned coupling did not converge in {s.max_iter} iterations",

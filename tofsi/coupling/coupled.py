@@ -151,10 +151,11 @@ class CoupledModel:
         with self.linear_algebra.blas():
             system = self.system_for(stage)
 
-            def at(p: Continuation, start: State | None, densities=rho) -> State:
-                return self.unfolded(system.solve(densities, p, start, progress))
+            def at(p: Continuation, start: State | None, densities=rho, direct: bool = False) -> State:
+                return self.unfolded(system.solve(densities, p, start, progress, direct=direct))
             try:
-                state = (ramped(at, stage.params, guess, c.min_load_step, rho, system.names)
+                state = (ramped(at, stage.params, guess, c.min_load_step, rho, system.names,
+                                inflow_fields=tuple(n for n in system.names if n == "w"))
                          if c.load_ramp and system.cycles
                          else at(stage.params, guess))     # one-way: the flow's Reynolds continuation instead
             except NumericalError as err:

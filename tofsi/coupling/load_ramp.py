@@ -5,7 +5,16 @@ from its warm start does not converge, or the mesh mover meets a predictor
 that folds an element. The solve always begins at the problem itself (the
 full inflow, from the warm start: the previous design's state, or the state
 the previous one-way stage left), and continues along a path only when that
-fails, in one of two parameters:
+fails. From a state of the one-way problem (no mesh motion yet) that first
+attempt is *direct*: its sweep solves each block without the block's own
+continuation (a finite-strain structure's load steps: ``direct`` of
+:meth:`~tofsi.core.blocks.FieldBlock.solve`), so that a start the full inflow
+cannot reach fails after one Newton of the structure instead of after its
+load steps and the mover's cutbacks, only for the ramp below to begin anyway
+(the large scene's first two-way solve at 80 x 40: 25 Newton iterations of the
+structure instead of 25, then its load steps with 2 cutbacks, then the mover's
+16 cutbacks; benchmarks/README.md); a structure stiff enough to need no ramp
+converges by that Newton alone. The path is one of two parameters:
 
 * **the densities**, when the warm start is a converged state of the coupled
   problem at other densities (the previous design of an optimization, also
@@ -23,7 +32,14 @@ fails, in one of two parameters:
   the structure's load and the mesh motion follow), from rest (the state at
   ``lambda = 0``) to the full inflow, the first step to half of it, since a
   state the full inflow's Newton cannot reach from its warm start is at least
-  that far from it.
+  that far from it. Each step's flow starts from the secant through the last two
+  states (from rest: the last one scaled), which holds the step's own inflow (the
+  prescribed velocities are linear in ``lambda``). From the last state unchanged,
+  a Newton step, whose flow matrix eliminates the Dirichlet columns, would move the
+  inflow alone and not the flow behind it: the large scene's step from half its
+  inflow to all of it took 14 Newton iterations at 80 x 40, 10 from the secant. The
+  structure and the mesh start where the last step left them (their secant
+  inverts elements there).
 
 Each step starts from the last converged one; a converged step grows the
 next by ``GROWTH``, a failed one is cut back to half, down to
@@ -51,16 +67,20 @@ FIRST_DENSITY_STEP = 0.5   # the densities' first step, from the warm start's
 MIN_DENSITY_STEP = 0.25    # the densities' smallest step: a trial design the path cannot reach fails after two tries
 GROWTH = 1.5               # a converged step's successor is this much longer (at most to the end)
 
-Solve = Callable[[Continuation, "State | None", np.ndarray], State]
+Solve = Callable[..., State]      # (params, guess, rho, direct=False) -> State
 
 
 def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: float, rho: np.ndarray,
-           fields: tuple[str, ...] = ()) -> State:
-    """``solve(params, guess, rho)`` at the full load, or, when that fails, along a path in the
+           fields: tuple[str, ...] = (), inflow_fields: tuple[str, ...] = ()) -> State:
+    """``solve(params, guess, rho)`` at the full load (``direct=True`` from a guess that holds
+    some of ``fields`` but not all: a one-way state), or, when that fails, along a path in the
     densities (a ``guess`` holding every field of ``fields`` at other densities) or else in the
-    inflow (see the module docstring). Raises :class:`NumericalError` naming how far the path got
-    when its step below the smallest (``min_step`` for the inflow) still fails."""
+    inflow, each step's ``inflow_fields`` (the flow, whose prescribed values the load scales)
+    from the secant (see the module docstring). Raises :class:`NumericalError` naming how far
+    the path got when its step below the smallest (``min_step`` for the inflow) still fails."""
     try:
+        if _partial(guess, fields):
+            return solve(params, guess, rho, direct=True)
         return solve(params, guess, rho)
     except NumericalError as direct:
         first_failure = direct
@@ -77,7 +97,8 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
     try:
         state, report = _continue(lambda t, start: solve(dataclasses.replace(params, load=params.load * t),
                                                           start, rho),
-                                  None, FIRST_STEP, min_step, "inflow ramp")
+                                  None, FIRST_STEP, min_step, "inflow ramp",
+                                  predict=lambda path, t: secant(path, t, inflow_fields))
     except NumericalError as err:
         failure = NumericalError(
             f"load continuation stopped at {err.diagnostic['reached']:.4g} of the inflow (a step of "
@@ -91,6 +112,29 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
     return state
 
 
+def _partial(guess: State | None, fields) -> bool:
+    """``guess`` holds some of ``fields`` but not every one (a state of the one-way problem)."""
+    held = [guess.fields.get(name) is not None for name in fields] if guess is not None else []
+    return any(held) and not all(held)
+
+
+def secant(path: list, t: float, names: tuple[str, ...]) -> State | None:
+    """The start of the step to ``t`` from the states along the ``path`` (``(t_k, state)``, from
+    ``(0, None)``: rest, every field zero): the fields ``names`` on the secant
+    ``z_k + (t - t_k) / (t_k - t_(k-1)) (z_k - z_(k-1))`` (after the first step: ``z_1 t / t_1``),
+    the others at ``z_k``; None from rest (the step's sweep fills every field)."""
+    (t1, last) = path[-1]
+    if last is None:
+        return None
+    t0, before = path[-2] if len(path) > 1 else (0.0, None)
+    r = (t - t1) / (t1 - t0)
+    fields = dict(last.fields)
+    for name in names:
+        if fields.get(name) is not None:
+            fields[name] = fields[name] + r * (fields[name] - (0.0 if before is None else before.fields[name]))
+    return State(rho=last.rho, fields=fields, params=last.params, stage=last.stage)
+
+
 def _solved_elsewhere(guess: State | None, fields, rho) -> bool:
     """``guess`` is a converged state of every field of the coupled problem at other densities."""
     return (guess is not None and guess.rho is not None and bool(fields)
@@ -98,17 +142,19 @@ def _solved_elsewhere(guess: State | None, fields, rho) -> bool:
             and np.shape(guess.rho) == np.shape(rho) and not np.array_equal(guess.rho, rho))
 
 
-def _continue(step_solve, start: State | None, first: float, min_step: float, what: str):
+def _continue(step_solve, start: State | None, first: float, min_step: float, what: str, predict=None):
     """Solve ``step_solve(t, start)`` for ``t`` from 0 (``start``, which may be None: rest) to 1 in
-    adaptive steps; ``(state at t = 1, {"steps", "cutbacks"})`` or a NumericalError whose diagnostic
-    says how far it got (``reached``, ``failed``, ``step``, ``steps``, ``cutbacks``) and whose cause
-    is the failed step's error."""
+    adaptive steps, each from the last converged state (``predict(path, t)``: from the states so far,
+    ``[(t_k, state)]``); ``(state at t = 1, {"steps", "cutbacks"})`` or a NumericalError whose
+    diagnostic says how far it got (``reached``, ``failed``, ``step``, ``steps``, ``cutbacks``) and
+    whose cause is the failed step's error."""
     steps, cutbacks = [], 0
     t, step, state = 0.0, first, start
+    path = [(0.0, start)]
     while t < 1.0:
         trial = min(1.0, t + step)
         try:
-            state = step_solve(trial, state)
+            state = step_solve(trial, predict(path, trial) if predict else state)
         except NumericalError as err:
             cutbacks += 1
             step *= 0.5
@@ -123,6 +169,7 @@ def _continue(step_solve, start: State | None, first: float, min_step: float, wh
             continue
         t = trial
         steps.append(t)
+        path.append((t, state))
         log.info("%s: step %d, %.4g of the way, converged", what, len(steps), t)
         step = min(GROWTH * step, 1.0)
     return state, {"steps": steps, "cutbacks": cutbacks}

@@ -58,13 +58,14 @@ class CoupledLinearization:
         return self.solver.solve_transpose(self.matrix(), b)
 
 
-def solve_monolithic(system, comp, fields, state) -> None:
+def solve_monolithic(system, comp, fields, state, direct: bool = False) -> None:
     """Solve the cycle ``comp`` of the block ``system`` in place: ``fields`` (a guess, or none:
-    one sweep first) become the solution, and ``state`` receives the blocks' linearizations,
-    the cycle's :class:`CoupledLinearization` and the report ``"coupling"``."""
+    one sweep first, ``direct``: without the blocks' own continuation) become the solution, and
+    ``state`` receives the blocks' linearizations, the cycle's :class:`CoupledLinearization`
+    and the report ``"coupling"``."""
     s = system.settings
     rho, params = state.rho, state.params
-    system.start(comp, fields, state)
+    system.start(comp, fields, state, direct=direct)
     solver = system.linear_solver(comp)
     blocks = [system.by_name[n] for n in comp]
     scales, history, kept = None, [], None

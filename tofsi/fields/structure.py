@@ -170,6 +170,7 @@ class StructureBlock(FieldBlock):
     solved by Newton, whose report is the state's ``structure`` report."""
 
     name, symbol, report_name = "u", "S", "structure"
+    own_continuation = True            # a nonlinear material's load steps (``direct``: none)
 
     def __init__(self, structure: Structure, material, moving_mesh: bool = False):
         self.structure, self.material = structure, material
@@ -194,15 +195,15 @@ class StructureBlock(FieldBlock):
     def linearize(self, fields, rho, params):
         return StructureLinearization(self, fields, rho, params)
 
-    def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
-        """From the guess (a nearby state) where the material is nonlinear; the solver of an
-        earlier sweep (``previous``) where it still serves (the LU of the same ``K_s``, or the
-        Newton's recycled factorization)."""
+    def solve(self, fields, rho, params, guess=None, previous=None, progress=None, direct=False):
+        """From the guess (a nearby state) where the material is nonlinear (``direct``: Newton
+        alone, no load steps); the solver of an earlier sweep (``previous``) where it still
+        serves (the LU of the same ``K_s``, or the Newton's recycled factorization)."""
         st, simp = self.structure, self.structure.simp(params)
         earlier = previous.solver if isinstance(previous, StructureLinearization) else None
         solver = self.material.solver(rho, simp, earlier)
         load = st.load(fields.get("w"), moved_mesh(fields, self.inputs), rho, params)
-        u, report = self.material.solve(load, rho, simp, guess=guess, solver=solver)
+        u, report = self.material.solve(load, rho, simp, guess=guess, solver=solver, direct=direct)
         return u, StructureLinearization(self, {**fields, "u": u}, rho, params, solver), report
 
     def residual_scale(self, fields, rho, params, lin):

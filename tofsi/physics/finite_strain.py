@@ -207,7 +207,7 @@ class FiniteStrainElasticity:
 
     # ---- Newton solve ------------------------------------------------------------------------
     def solve(self, f: np.ndarray, rho, simp: SIMP, guess: np.ndarray | None = None,
-              solver: RecyclingSolver | None = None) -> FiniteStrainSolution:
+              solver: RecyclingSolver | None = None, load_steps: bool = True) -> FiniteStrainSolution:
         """``u`` with ``R_int(u) = f`` on the free dofs and the clamped dofs at zero.
 
         guess : a displacement of a nearby problem (the previous coupling sweep's, design's or
@@ -217,6 +217,9 @@ class FiniteStrainElasticity:
             an element) the load is stepped from zero.
         solver : a :class:`~tofsi.linalg.RecyclingSolver` whose factorization may
             precondition this solve's tangents (a new one by default).
+        load_steps : False: Newton from the start alone, a :class:`~tofsi.core.errors.NumericalError`
+            when it fails (a caller with a continuation of its own: the coupled solve's
+            direct attempt, which the inflow ramp follows).
         The result does not depend on either (to ``newton_tol``).
         """
         t0 = time.perf_counter()
@@ -235,6 +238,8 @@ class FiniteStrainElasticity:
         try:
             u, state = self._newton(start, state, f, 1.0, rho, simp, solver, report)
         except StepFailed as failed:
+            if not load_steps:
+                self._fail(failed, 0.0, report, rho, simp, "Newton to the full load without load steps")
             log.info("structure: Newton to the full load failed (%s); load steps from %s", failed,
                      "the guess" if report.warm_start else "zero")
             u, state = self._load_steps(f, f0, start, state, rho, simp, solver, report)
@@ -273,12 +278,12 @@ class FiniteStrainElasticity:
         E = self.kernel.n_elements
         return ElementValues(np.zeros((E, 8)), simp(rho)[:, None, None] * self.kernel.K0, np.ones(E), np.zeros(E))
 
-    def _fail(self, failed: StepFailed, load: float, report: FiniteStrainReport, rho, simp):
+    def _fail(self, failed: StepFailed, load: float, report: FiniteStrainReport, rho, simp, how: str = ""):
         worst = self.worst_element(self._values(failed.u, rho, simp, False).det_min)
         origin = "the guess's load" if report.warm_start else "zero"
+        how = how or f"no convergence at load factor {load:.4g} (from {origin}) after {report.cutbacks} cutbacks"
         raise NumericalError(
-            f"structure ({self.kernel_type.material}): no convergence at load factor {load:.4g} (from {origin}) after "
-            f"{report.cutbacks} cutbacks ({failed}); smallest det F {worst['min_det_F']:.3g} in element "
+            f"structure ({self.kernel_type.material}): {how} ({failed}); smallest det F {worst['min_det_F']:.3g} in element "
             f"{worst['worst_element']} at ({worst['centroid'][0]:.3g}, {worst['centroid'][1]:.3g}) m",
             {**worst, "load_factor": load, "from_guess": report.warm_start, "cutbacks": report.cutbacks,
              "reason": str(failed), "newton_iterations": report.newton_iterations,

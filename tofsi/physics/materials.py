@@ -60,7 +60,9 @@ class Material:
     def solver(self, rho, simp: SIMP, previous=None):
         raise NotImplementedError
 
-    def solve(self, f, rho, simp: SIMP, guess=None, solver=None) -> tuple[np.ndarray, dict | None]:
+    def solve(self, f, rho, simp: SIMP, guess=None, solver=None, direct=False) -> tuple[np.ndarray, dict | None]:
+        """``(u, report)`` with ``R_int(u) = f``; ``direct``: from the guess without the material's
+        own continuation (a nonlinear one's load steps), failing fast."""
         raise NotImplementedError
 
 
@@ -133,7 +135,7 @@ class SmallStrain(Material):
             return previous                                   # K_s depends on (rho, p) only
         return StiffnessSolver(self, rho, simp)
 
-    def solve(self, f, rho, simp, guess=None, solver=None):
+    def solve(self, f, rho, simp, guess=None, solver=None, direct=False):
         solver = self.solver(rho, simp) if solver is None else solver
         return solver.solve(None, self.structure.bc.homogenize(f)), None
 
@@ -168,9 +170,9 @@ class FiniteStrain(Material):
             return previous
         return TangentSolver(RecyclingSolver(self.structure.direct))
 
-    def solve(self, f, rho, simp, guess=None, solver=None):
+    def solve(self, f, rho, simp, guess=None, solver=None, direct=False):
         solver = self.solver(rho, simp) if solver is None else solver
-        solution = self.elasticity.solve(f, rho, simp, guess, solver.recycling)
+        solution = self.elasticity.solve(f, rho, simp, guess, solver.recycling, load_steps=not direct)
         return solution.u, solution.report.as_dict()
 
 
