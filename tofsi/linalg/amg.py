@@ -22,6 +22,23 @@ elements the setup's peak above what was held before it falls from 9.9 to
 2.7 kB per element, 1.3 of which it keeps (nonsymmetric: 14.1 to 6.7, a
 transposed copy of ``A`` among them; ``docs/parallel.md``). The coarser
 levels (a few thousand unknowns) are pyamg's own.
+
+The cycle smooths with pyamg's symmetric block Gauss-Seidel sweeps (forward
+and backward) before and after the coarse correction, or, with ``ONE_SWEEP``,
+one forward sweep before and one backward sweep after: half the smoothing
+work, and still a symmetric operator for a symmetric ``A`` (the post-smoother
+is the pre-smoother's adjoint). The flow's block preconditioner
+(:mod:`tofsi.linalg.iterative`) takes ``ONE_SWEEP``: measured on the
+velocity block at 180 x 90 elements (130 682 unknowns, one thread), a
+V-cycle 16.5 ms instead of 26.0 ms, the adjoint's transposed GMRES 70
+iterations instead of 65 (1.98 s instead of 2.63 s), the Newton steps' GMRES
+1-4 iterations more per solve of 15-30 (0.48-0.92 s instead of 0.55-0.94 s);
+weighted Jacobi (two sweeps each side) and 2 x 2 block Gauss-Seidel were
+slower. On sharp designs the gain shrinks: at 180 x 90 the forward solve
+still gains 4-10 % and the transposed one nothing, at 80 x 40 the transposed
+solve takes 15 % longer (``docs/parallel.md``, "Smoothing"). :class:`AMGSolver` (the structure, the movers) keeps the symmetric
+sweeps: with ``ONE_SWEEP`` its CG took 258 iterations instead of 191 on a
+random gray 180 x 90 structure, for the same time (0.82 s against 0.88 s).
 """
 
 from __future__ import annotations
@@ -58,7 +75,9 @@ def rigid_body_modes(points: np.ndarray) -> np.ndarray:
 
 OMEGA = 4.0 / 3.0                                      # pyamg's Jacobi prolongation smoothing weight
 IMPROVE = ("block_gauss_seidel", {"sweep": "symmetric", "iterations": 4})   # pyamg's candidate improvement
-SMOOTHER = ("block_gauss_seidel", {"sweep": "symmetric"})                  # pyamg's pre- and post-smoother
+SYMMETRIC_SWEEPS = (("block_gauss_seidel", {"sweep": "symmetric"}),) * 2   # pyamg's pre- and post-smoother
+ONE_SWEEP = (("block_gauss_seidel", {"sweep": "forward"}),      # one forward Gauss-Seidel sweep before the
+             ("block_gauss_seidel", {"sweep": "backward"}))     # coarse correction, one backward after
 MAX_COARSE = 300
 
 
@@ -79,17 +98,21 @@ def _smoothed(A, T):
     return T - AT
 
 
-def smoothed_aggregation(A, B: np.ndarray | None = None, symmetric: bool = True) -> MultilevelSolver:
+def smoothed_aggregation(A, B: np.ndarray | None = None, symmetric: bool = True,
+                         smoothers: tuple = SYMMETRIC_SWEEPS) -> MultilevelSolver:
     """pyamg's ``smoothed_aggregation_solver(A, B, symmetry, max_coarse=300,
     coarse_solver="splu")`` with the finest level built without copies of ``A``
-    (module docstring); ``A`` CSR with sorted indices, kept as level 0."""
+    (module docstring); ``A`` CSR with sorted indices, kept as level 0; ``smoothers``
+    the (pre, post) smoothers of its cycle: pyamg's symmetric sweeps, or ``ONE_SWEEP``."""
     A = sp.csr_array(A)
     n = A.shape[0]
     B = np.ones((n, 1)) if B is None else np.asarray(B, dtype=A.dtype).reshape(n, -1)
     symmetry = "symmetric" if symmetric else "nonsymmetric"
     if n <= MAX_COARSE:
-        return pyamg.smoothed_aggregation_solver(A, B=B, symmetry=symmetry, max_coarse=MAX_COARSE,
-                                                 coarse_solver="splu")
+        ml = pyamg.smoothed_aggregation_solver(A, B=B, symmetry=symmetry, max_coarse=MAX_COARSE,
+                                               coarse_solver="splu")
+        change_smoothers(ml, *smoothers)
+        return ml
     A.symmetry = symmetry
     aggregates = standard_aggregation(sp.csr_array((A.data, A.indices, A.indptr), shape=A.shape))[0]
     fine = MultilevelSolver.Level()
@@ -111,7 +134,7 @@ def smoothed_aggregation(A, B: np.ndarray | None = None, symmetric: bool = True)
                                              improve_candidates=None,        # pyamg improves the finest only
                                              max_coarse=MAX_COARSE, max_levels=9, coarse_solver="splu")
     ml = MultilevelSolver([fine] + rest.levels, coarse_solver="splu")
-    change_smoothers(ml, SMOOTHER, SMOOTHER)
+    change_smoothers(ml, *smoothers)
     return ml
 
 
