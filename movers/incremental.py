@@ -182,7 +182,7 @@ class IncrementDerivatives:
         if self.systems is not None:            # first use: every sweep needs them all
             if None in self.solvers:
                 release_free_pages()
-            self.solvers = [self.factorize(A) if s is None else s for s, A in zip(self.solvers, self.systems)]
+            self.solvers = [self.factorize(A) if s is None else s for s, A in zip(self.solvers, self.systems, strict=True)]
             self.systems = None                 # the factors are what is kept
         return self.solvers[k]
 

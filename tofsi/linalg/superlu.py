@@ -42,10 +42,10 @@ def _glibc():
     """glibc (None elsewhere: macOS, musl)."""
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        libc.gnu_get_libc_version        # glibc only
-        return libc if hasattr(libc, "malloc_trim") else None
-    except (OSError, AttributeError):
+    except OSError:
         return None
+    glibc = hasattr(libc, "gnu_get_libc_version") and hasattr(libc, "malloc_trim")
+    return libc if glibc else None
 
 
 _LIBC = _glibc()

@@ -37,6 +37,7 @@ from tofsi.core.errors import InputError, NumericalError
 from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.linalg.iterative import FLOOR
 from tofsi.parallel.partition import SlabPartition, row_counts
+from tofsi.parallel.petsc_support import DarcySchurPC, collect_garbage, petsc
 from tofsi.physics.flow_preconditioner import element_areas
 from tofsi.physics.flow_view import FlowView
 from tofsi.physics.fluid_kernel import fluid_element
@@ -46,47 +47,6 @@ if TYPE_CHECKING:                              # annotations only: petsc4py is i
 
 log = logging.getLogger(__name__)
 CHUNK = 2048                # elements per kernel call (bounds the kernel's temporaries)
-
-
-def _petsc():
-    from petsc4py import PETSc
-    return PETSc
-
-
-def collect_garbage(comm) -> None:
-    """Destroy the PETSc objects Python has dropped (collective on ``comm``).
-
-    petsc4py >= 3.18 does not destroy an object on a parallel communicator when its
-    Python reference goes (the ranks could disagree on when that happens): it parks it
-    until ``PETSc.garbage_cleanup(comm)``. Without this call every flow solve's
-    submatrices, Schur pieces, hierarchies and work vectors stay allocated -- 10 MB per
-    two-way sweep at 2500 elements per rank, the per-rank peak growing with the sweeps."""
-    cleanup = getattr(_petsc(), "garbage_cleanup", None)        # absent before petsc4py 3.18
-    if cleanup is not None:
-        cleanup(comm)
-
-
-class DarcySchurPC:
-    """Python PC on the pressure split: ``y = -(g / M_mu + AMG(L_alpha) g)``."""
-
-    def __init__(self, mass, L, amg: str):
-        PETSc = _petsc()
-        self.inverse_mass = mass.copy()
-        self.inverse_mass.reciprocal()
-        self.inner = PETSc.PC().create(comm=L.getComm())
-        self.inner.setOperators(L, L)
-        self.inner.setType(amg)
-        self.inner.setUp()
-        self.work = L.createVecLeft()
-
-    def apply(self, pc, g, y):
-        self.inner.apply(g, self.work)
-        y.pointwiseMult(g, self.inverse_mass)
-        y.axpy(1.0, self.work)
-        y.scale(-1.0)
-
-    def applyTranspose(self, pc, g, y):        # noqa: N802 - PETSc's name; both terms are symmetric
-        self.apply(pc, g, y)
 
 
 class DistributedFlow:
@@ -106,7 +66,7 @@ class DistributedFlow:
                              "open segment in a [fluid.<side>] table, or solve serially")
         if flow.body_force is not None:
             raise ValueError("the distributed flow has no body force term")
-        PETSc = _petsc()
+        PETSc = petsc()
         self.flow, self.amg, self.rtol = flow, amg, rtol
         self.comm = PETSc.COMM_WORLD if comm is None else comm
         self.part = SlabPartition.of(flow, self.comm.getRank(), self.comm.getSize())
@@ -154,7 +114,7 @@ class DistributedFlow:
 
     def gather(self):
         """The whole state in the flow's numbering on rank 0 (None elsewhere)."""
-        PETSc = _petsc()
+        PETSc = petsc()
         scatter, whole = PETSc.Scatter.toZero(self.w)
         scatter.scatter(self.w, whole, PETSc.InsertMode.INSERT_VALUES, PETSc.ScatterMode.FORWARD)
         out = None
@@ -167,7 +127,7 @@ class DistributedFlow:
     def ghost_values(self, w: "PETSc.Vec") -> np.ndarray:
         """``(m,)``: the entries of the distributed ``w`` at :attr:`ghosts` (every dof the slab's
         elements touch), through one scatter; ``self.local`` indexes them by element."""
-        PETSc = _petsc()
+        PETSc = petsc()
         self.scatter.scatter(w, self.ghost_vec, PETSc.InsertMode.INSERT_VALUES, PETSc.ScatterMode.FORWARD)
         return self.ghost_vec.getArray()
 
@@ -179,7 +139,7 @@ class DistributedFlow:
     def vector_of_ghosts(self, values: np.ndarray) -> "PETSc.Vec":
         """A new distributed vector, the sum over ranks of their ghosted values ``(m,)`` (a dof on
         a cut gets both slabs' contributions)."""
-        PETSc = _petsc()
+        PETSc = petsc()
         v = self.mat.createVecLeft()
         v.zeroEntries()
         v.setValues(self.ghosts, np.asarray(values, dtype=float), addv=PETSc.InsertMode.ADD_VALUES)
@@ -208,7 +168,7 @@ class DistributedFlow:
         """Residual (``self.r``, fixed rows zeroed) and, if asked, the constrained Jacobian
         (``self.mat``) of the slab's elements at ``w``; returns ``|R|``. The kernel runs on
         chunks of :data:`CHUNK` elements, each added at once, so its temporaries stay small."""
-        PETSc = _petsc()
+        PETSc = petsc()
         flow = self.flow
         ADD = PETSc.InsertMode.ADD_VALUES
         ve, pe = self.slab_values(w)
@@ -235,7 +195,7 @@ class DistributedFlow:
 
     def _schur_parts(self, x, rho, params):
         """``M_mu`` (pressure) and ``1/(alpha M_v)`` (velocity, 0 on fixed) as distributed vectors."""
-        PETSc = _petsc()
+        PETSc = petsc()
         flow, p = self.flow, self.part
         mu = flow.settings.viscosity
         area = element_areas(self.corners(x))                                          # (E_r,)
@@ -263,7 +223,7 @@ class DistributedFlow:
     def _ksp(self, mat, x, rho, params):
         """FGMRES with the fieldsplit Schur preconditioner of the assembled ``mat`` (``self.mat``
         or its transpose: ``B`` and ``B^T`` are read from ``mat``'s off-diagonal blocks)."""
-        PETSc = _petsc()
+        PETSc = petsc()
         mass, weights = self._schur_parts(x, rho, params)
         B = mat.createSubMatrix(self.is_p, self.is_v)
         Bt = mat.createSubMatrix(self.is_v, self.is_p)
@@ -299,7 +259,7 @@ class DistributedFlow:
         adjoint's sweeps solve several times there) until :meth:`release_transpose`."""
         if self.transposed is None or self.transposed[0] is not self.linearized_at:
             self.release_transpose()
-            mat_t = self.mat.transpose(_petsc().Mat())          # (petsc4py: no argument = in place)
+            mat_t = self.mat.transpose(petsc().Mat())          # (petsc4py: no argument = in place)
             self.transposed = (self.linearized_at, mat_t, self._ksp(mat_t, *self.linearized_at))
         return self.transposed[2]
 
