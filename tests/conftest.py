@@ -62,3 +62,22 @@ def cli(monkeypatch, capsys):
     yield run
     for name in LOGGERS:
         logging.getLogger(name).setLevel(logging.NOTSET)
+
+
+def cyclic_garbage(action):
+    """``(result, counts)``: ``action()``'s result, and the type names (with counts) of what it
+    left that only Python's cyclic garbage collector would free -- collected with the collector
+    off, so nothing is freed before it is counted."""
+    import collections
+    import gc
+    gc.collect()
+    gc.disable()
+    gc.set_debug(gc.DEBUG_SAVEALL)
+    try:
+        result = action()
+        gc.collect()
+        return result, collections.Counter(type(o).__name__ for o in gc.garbage)
+    finally:
+        gc.set_debug(0)
+        gc.garbage.clear()
+        gc.enable()

@@ -18,7 +18,7 @@ from tofsi.coupling.coupled import CoupledModel, continuation
 from tofsi.core.errors import NumericalError
 from tofsi.optimization.optimize import Optimizer
 
-from conftest import load, scene_path
+from conftest import cyclic_garbage, load, scene_path
 
 WALL = ["geometry.design=[]", "design.coupling=[]", "structure.youngs_modulus=2e4", "mesh.h_min=0.1",
         "mesh.h_max=0.1", "coupled.max_iter=8"]   # the headline's wall alone, 6.7 times stiffer: it bends
@@ -128,7 +128,6 @@ def test_a_move_in_increments_is_freed_with_its_last_reference_and_its_store_rel
     their factors outside Python's accounting -- 8 GB at 80 x 40 after 70 iterations, issue 32).
     And a store gives the heap's free pages back once before it factorizes its increments
     (:func:`tofsi.linalg.superlu.release_free_pages`), not per factorization."""
-    import collections
     import gc
     import movers.incremental as incremental
     events = []
@@ -138,19 +137,11 @@ def test_a_move_in_increments_is_freed_with_its_last_reference_and_its_store_rel
     problem.set_stage(continuation(scene, 3))
     c = problem.model.mesh.centroids[problem.map.design]
     gamma = np.where((np.abs(c[:, 0] - 1.0) < 0.2) & (c[:, 1] < 0.55), 1.0, 0.0)
-    gc.collect()
-    gc.disable()
-    gc.set_debug(gc.DEBUG_SAVEALL)
-    try:
+    def two_designs():
         for step in (0.0, 1e-3):                              # the second design: the post softened
             problem.evaluate(gamma * (1 - step))
-        stores = [o for o in gc.get_objects() if isinstance(o, incremental.IncrementDerivatives)]
-        gc.collect()
-        cyclic = collections.Counter(type(o).__name__ for o in gc.garbage)
-    finally:
-        gc.set_debug(0)
-        gc.garbage.clear()
-        gc.enable()
+        return [o for o in gc.get_objects() if isinstance(o, incremental.IncrementDerivatives)]
+    stores, cyclic = cyclic_garbage(two_designs)
     assert stores and all(s.solvers and None not in s.solvers for s in stores)   # teeth: stores were made
     kept = {"MoveResult", "MoveLinearization", "IncrementDerivatives", "MoveRecord", "DirectSolver",
             "Factorization", "LinearMap"}

@@ -24,7 +24,7 @@ from tofsi.core.blocks import Continuation, State
 from tofsi.core.errors import NumericalError
 from tofsi.optimization.optimize import Optimizer
 
-from conftest import load
+from conftest import cyclic_garbage, load
 
 COARSE = ["mesh.h_min=0.05", "mesh.h_max=0.05"]
 
@@ -137,19 +137,7 @@ def test_a_ramped_solve_leaves_its_failed_attempt_to_no_cycle(one_way_start):
     """The failed full-inflow attempt is kept as its message: its exception's traceback would
     hold the ramp's frame, which held the exception -- a cycle that kept the failed attempt's
     states, moves and factorizations until Python's rare full collections (issue 32)."""
-    import collections
-    import gc
     gamma, guess = one_way_start
-    gc.collect()
-    gc.disable()
-    gc.set_debug(gc.DEBUG_SAVEALL)
-    try:
-        _, state = first_two_way(gamma, guess, "structure.youngs_modulus=2e3")
-        gc.collect()
-        cyclic = collections.Counter(type(o).__name__ for o in gc.garbage)
-    finally:
-        gc.set_debug(0)
-        gc.garbage.clear()
-        gc.enable()
+    (_, state), cyclic = cyclic_garbage(lambda: first_two_way(gamma, guess, "structure.youngs_modulus=2e3"))
     assert state.reports["load_ramp"]["full_load_failure"]           # teeth: the attempt failed
     assert not {"NumericalError", "State", "traceback"} & set(cyclic), cyclic
