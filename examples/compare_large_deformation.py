@@ -230,15 +230,20 @@ def pictures(rows: list[dict], path: Path) -> None:
     names = list(dict.fromkeys(r["mover"] for r in rows))
     fig, axes = plt.subplots(len(variants), len(names), figsize=(3.2 * len(names), 1.9 * len(variants)),
                              squeeze=False, layout="constrained")
+    for ax in axes.flat:                    # a mover x variant without a run stays blank
+        ax.set_axis_off()
     for r in rows:
         ax = axes[variants.index((r["stiffening"], r["constraint"])), names.index(r["mover"])]
+        ax.set_axis_on()
         if r["design"] is not None:         # a failed run: its last design that solved
             rho = problem.densities(np.asarray(r["design"]))
             ax.tripcolor(mesh.points[:, 0], mesh.points[:, 1],
                          np.vstack([mesh.quads[:, [0, 1, 2]], mesh.quads[:, [0, 2, 3]]]),
                          facecolors=np.concatenate([rho, rho]), cmap="Greys", vmin=0, vmax=1)
         ax.set_title(f"{r['mover']}, {r['stiffening']}, q {'on' if r['constraint'] else 'off'}: "
-                     + f"{r['reference_compliance']:.3g} J/m" + ("" if r["finished"] else " (failed)"), fontsize=7)
+                     + (f"{r['reference_compliance']:.3g} J/m" if math.isfinite(r["reference_compliance"])
+                        else f"{r['compliance']:.3g} J/m own (no reference)")
+                     + ("" if r["finished"] else " (failed)"), fontsize=7)
         ax.set_aspect("equal")
         ax.set_xticks([])
         ax.set_yticks([])
