@@ -177,6 +177,26 @@ def test_the_lean_smoothed_aggregation_is_pyamgs_hierarchy(symmetric):
     assert np.linalg.norm(mine - theirs) <= 1e-10 * np.linalg.norm(theirs)
 
 
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_the_v_cycle_is_pyamgs_preconditioner_bitwise(symmetric):
+    """:func:`tofsi.linalg.amg.v_cycle` applies pyamg's ``aspreconditioner()`` (one V-cycle
+    from zero) without its residual norms: the same result bit for bit, on a symmetric and a
+    nonsymmetric hierarchy with both smoothers, and on a one-level hierarchy (coarse solve only)."""
+    import pyamg
+    from tofsi.linalg.amg import ONE_SWEEP, SYMMETRIC_SWEEPS, smoothed_aggregation, v_cycle
+    K = sp.csr_matrix(pyamg.gallery.linear_elasticity((60, 60))[0])
+    A = K if symmetric else (K + 0.2 * (sp.tril(K, -1) - sp.triu(K, 1))).tocsr()
+    A.sort_indices()
+    b = np.random.default_rng(1).standard_normal(A.shape[0])
+    for smoothers in (ONE_SWEEP, SYMMETRIC_SWEEPS):
+        ml = smoothed_aggregation(A, None, symmetric, smoothers)
+        assert len(ml.levels) >= 3
+        assert np.array_equal(v_cycle(ml)(b), ml.aspreconditioner(cycle="V") @ b)
+    small = smoothed_aggregation(A[:200, :200].tocsr(), None, symmetric)
+    assert len(small.levels) == 1
+    assert np.array_equal(v_cycle(small)(b[:200]), small.aspreconditioner(cycle="V") @ b[:200])
+
+
 @pytest.mark.parametrize("outlet", ["zero-pressure", "traction-free"])
 def test_the_iterative_path_assembles_the_jacobian_as_its_blocks(outlet):
     """On the iterative path the flow's Jacobian is assembled as its blocks ``A``, ``B``: the
