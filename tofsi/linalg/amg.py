@@ -30,7 +30,8 @@ work, and still a symmetric operator for a symmetric ``A`` (the post-smoother
 is the pre-smoother's adjoint). The flow's block preconditioner
 (:mod:`tofsi.linalg.iterative`) takes ``ONE_SWEEP``: measured on the
 velocity block at 180 x 90 elements (130 682 unknowns, one thread), a
-V-cycle 16.5 ms instead of 26.0 ms, the adjoint's transposed GMRES 70
+V-cycle 16.5 ms instead of 26.0 ms through pyamg's ``solve`` (11.4-11.8 against
+17.8-18.6 ms by :func:`v_cycle`, which applies it without pyamg's residual norms), the adjoint's transposed GMRES 70
 iterations instead of 65 (1.98 s instead of 2.63 s), the Newton steps' GMRES
 1-4 iterations more per solve of 15-30 (0.48-0.92 s instead of 0.55-0.94 s);
 weighted Jacobi (two sweeps each side) and 2 x 2 block Gauss-Seidel were
