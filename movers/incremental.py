@@ -49,6 +49,8 @@ from movers.base import MoveReport, element_apply, quality_record
 from movers.problem import MotionProblem
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
+from tofsi.linalg import LinearAlgebra
+from tofsi.linalg.recycling import flexible_gmres
 from tofsi.linalg.superlu import release_free_pages
 
 ElementMatrices = Callable[[np.ndarray], np.ndarray]
@@ -63,19 +65,113 @@ def system(bc, Ke: np.ndarray, dofs: np.ndarray, blend):
 @dataclass
 class MoveRecord:
     """What a move in increments keeps for its derivatives: each increment's unscaled element
-    matrices and, by increment, the exact factorization of its system where the move made one
-    (a recycling solver factorizes every few increments)."""
+    matrices and constrained system and, by increment, the exact factorization of its system
+    where the move made one."""
 
     matrices: list = field(default_factory=list)
     factors: dict = field(default_factory=dict)
+    systems: list = field(default_factory=list)      # each increment's constrained matrix (CSR)
+
+
+class IncrementSolvers:
+    """Exact factorizations (sparse LU) of the increments' systems, kept across the moves at one
+    design (the caller keys it by the densities, :meth:`tofsi.physics.mesh_motion.MeshMotion.move`):
+    a Newton's iterates and line-search trials move the mesh for nearby structure motions, so
+    increment ``k``'s system differs little from increment ``k``'s of the move before.
+
+    A move solves increment ``k`` by flexible GMRES (to ``rtol`` relative to the right-hand side,
+    like :class:`~tofsi.linalg.RecyclingSolver`) preconditioned by the factors kept for increment
+    ``k`` -- made at increment ``k`` of an earlier move, or by the store of an earlier move's
+    derivatives (:class:`IncrementDerivatives`, which gives its factors back here) --, else by
+    the factors the move used last (an earlier increment's, as a recycling solver would), from
+    the change increment ``k`` made in the latest move (else the increment before's). Where
+    GMRES needs more than ``max_iter`` iterations the system is factorized; where it needed more
+    than ``refresh_after`` the factors used are not used for that increment again. Factors made at
+    a move's own system serve its store. Results never depend on timing, only on the moves made at
+    the design (iteration counts)."""
+
+    exact = True
+
+    def __init__(self, factorize, rtol: float = 1e-10, max_iter: int = 20, refresh_after: int = 6):
+        self.factorize, self.rtol = factorize, rtol
+        self.max_iter, self.refresh_after = max_iter, refresh_after
+        self.factors: dict[int, object] = {}          # increment -> factors of a system near its own
+        self.steps: dict[int, np.ndarray] = {}        # increment -> its change in the latest move
+
+    def move(self) -> "MoveSolver":
+        """The solver of one move (its own counts and its latest factors)."""
+        return MoveSolver(self)
+
+    def keep(self, factors) -> None:
+        """Take the factors a store made (per increment, exact at its move's systems)."""
+        self.factors.update({k: f for k, f in enumerate(factors) if f is not None})
+
+
+class MoveSolver:
+    """One move's use of :class:`IncrementSolvers`: ``solve_increment`` and the move's counts."""
+
+    exact = True
+
+    def __init__(self, bank: IncrementSolvers):
+        self.bank, self.factorize = bank, bank.factorize
+        self.factorizations = self.krylov_iterations = 0
+        self.latest = None                             # the factors the move used last
+
+    def keep(self, factors) -> None:
+        self.bank.keep(factors)
+
+    def solve_increment(self, k: int, A, b: np.ndarray, guess=None):
+        """``(A^-1 b, factors made at A or None)`` for increment ``k``'s system ``A``."""
+        bank = self.bank
+        own = bank.factors.get(k)
+        preconditioner = own if own is not None else self.latest
+        before = bank.steps.get(k)
+        if before is not None and before.shape == b.shape:
+            guess = before                            # the latest move's: nearer than the increment before
+        if preconditioner is not None and preconditioner.shape == A.shape:
+            goal = bank.rtol * float(np.linalg.norm(b))
+            x, its = flexible_gmres(A, b, preconditioner.preconditioner(), goal, bank.max_iter, bank.max_iter,
+                                    guess)
+            self.krylov_iterations += its
+            if np.all(np.isfinite(x)) and np.linalg.norm(b - A @ x) <= 1.01 * goal:
+                if its > bank.refresh_after:          # gone stale: factorize the next time instead
+                    if preconditioner is own:
+                        del bank.factors[k]
+                    self.latest = None
+                else:
+                    self.latest = preconditioner
+                bank.steps[k] = x
+                return x, None
+        made = bank.factorize(A)
+        self.factorizations += 1
+        bank.factors[k] = self.latest = made
+        bank.steps[k] = x = made.solve(b)
+        return x, made
+
+
+def solvers_for(problem: MotionProblem, params) -> IncrementSolvers | None:
+    """The :class:`IncrementSolvers` of a mover in increments (``params``: its ``tangent_solver``
+    and ``linear_tol``) on ``problem``: sparse LU on the problem's backend; None where its
+    tangent solver is iterative (AMG, or the iterative path)."""
+    la = problem.linear_algebra or LinearAlgebra.default()
+    if la.iterative or getattr(params, "tangent_solver", "direct") == "amg":
+        return None
+    return IncrementSolvers(lambda A: la.direct(A, perm=problem.ordering), rtol=getattr(params, "linear_tol", 1e-10))
+
+
+def increment_solver(solver, bank: IncrementSolvers | None):
+    """A move's solver: its share of ``bank`` (exact factorizations kept across the moves at one
+    design) where given, else the recycling ``solver``."""
+    return solver if bank is None else bank.move()
 
 
 def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.ndarray,
               step: np.ndarray, solver, report: MoveReport, guess=None, blend=None,
-              record: MoveRecord | None = None) -> np.ndarray:
-    """The change ``dx`` (2n,) of one increment from displacement ``x`` (2n,) towards
-    ``x + step``; ``guess`` starts the iterative solve; ``record`` receives the increment's
-    element matrices and factorization."""
+              record: MoveRecord | None = None, index: int = 0) -> np.ndarray:
+    """The change ``dx`` (2n,) of one increment (number ``index``) from displacement ``x`` (2n,)
+    towards ``x + step``; ``guess`` starts the iterative solve; ``record`` receives the
+    increment's element matrices and factorization. ``solver``: a
+    :class:`~tofsi.linalg.RecyclingSolver` or a :class:`MoveSolver`."""
     bc, dofs = problem.bc, problem.dofs
     Xe = problem.points[problem.quads] + x.reshape(-1, 2)[problem.quads]
     K0 = element_matrices(Xe)
@@ -87,13 +183,19 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
         rhs = blend.residual(rhs, step, 0.0)      # W (-K_fp d_p) + S_c d
     rhs[bc.fixed] = step[bc.fixed]
     report.linear_solves += 1
-    factorizations = solver.factorizations
-    dx = solver.solve(system(bc, Ke, dofs, blend), rhs, guess)
+    A = system(bc, Ke, dofs, blend)
+    if isinstance(solver, MoveSolver):
+        dx, made = solver.solve_increment(index, A, rhs, guess)
+    else:
+        factorizations = solver.factorizations
+        dx = solver.solve(A, rhs, guess)
+        made = solver.solver if solver.factorizations > factorizations and solver.solver.exact else None
     dx[bc.fixed] = step[bc.fixed]              # exact, whatever the solver's tolerance
     if record is not None:
-        if solver.factorizations > factorizations and solver.solver.exact:
-            record.factors[len(record.matrices)] = solver.solver        # made at this system
+        if made is not None:
+            record.factors[len(record.matrices)] = made        # made at this system
         record.matrices.append(K0)
+        record.systems.append(A)
     return dx
 
 
@@ -107,7 +209,8 @@ def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
     step = target / n
     dx = None
     for k in range(n):
-        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, record=record)
+        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, record=record,
+                       index=k)
         x = x + dx
         states.append(x)
         report.increments += 1
@@ -147,8 +250,9 @@ class IncrementDerivatives:
     made on first use with ``factorize``, the move's solver kind; it serves ``A_k`` and
     ``A_k^T``), the assembled ``P_f W f D_k``, the element forces ``K0_e dx_e (Em, 8)``, (blended)
     the assembled ``K_k dx_k``, and ``W K_k`` of the quads with a fixed dof (the prescribed
-    motion's share). ``record``: what the move kept (its element matrices and factorizations;
-    else they are made again). Memory: per increment a factorization of the mesh system and
+    motion's share). ``record``: what the move kept (its element matrices, systems and
+    factorizations; else they are made again); ``keep``: takes the factorizations once made
+    (:meth:`IncrementSolvers.keep`: they precondition the later moves at the design). Memory: per increment a factorization of the mesh system and
     one sparse matrix of its pattern. The missing factorizations are made together on first use
     (every sweep needs them all), after the heap's free pages went back to the system
     (:func:`~tofsi.linalg.superlu.release_free_pages`: SuperLU's arrays, sized from a fill
@@ -157,13 +261,13 @@ class IncrementDerivatives:
     """
 
     def __init__(self, problem: MotionProblem, states: list[np.ndarray], kernel: IncrementKernel,
-                 blend=None, factorize=None, record: MoveRecord | None = None):
+                 blend=None, factorize=None, record: MoveRecord | None = None, keep=None):
         bc, dofs, f = problem.bc, problem.dofs, problem.stiffening
         weight = np.ones(2 * problem.n_nodes) if blend is None else blend.weight
         scale = f[:, None, None] * weight[dofs][:, :, None]          # rows of f_e W
         self.edge = np.flatnonzero(bc.is_fixed[dofs].any(axis=1))   # quads with a fixed dof
         self.dofs_edge = dofs[self.edge]
-        self.factorize = factorize
+        self.factorize, self.keep = factorize, keep      # keep: takes the factors, for later moves
         self.solvers: list = [None if record is None else record.factors.get(k) for k in range(len(states) - 1)]
         self.increments, self.systems = [], []
         for k in range(len(states) - 1):
@@ -174,7 +278,9 @@ class IncrementDerivatives:
             WD = bc.row_matrix(scale * kernel.force_derivative(Xe, dx_e)) if k > 0 else None  # x_0 = 0
             forces = np.einsum("eab,eb->ea", K0, dx_e)
             Kdx = None if blend is None else assemble_vector(dofs, f[:, None] * forces, dx.size)
-            self.systems.append(None if self.solvers[k] is not None else system(bc, K0 * f[:, None, None], dofs, blend))
+            A = None if self.solvers[k] is not None else (
+                system(bc, K0 * f[:, None, None], dofs, blend) if record is None else record.systems[k])
+            self.systems.append(A)
             self.increments.append(_Stored(dx, (scale * K0)[self.edge] if self.edge.size else None,
                                            WD, forces, Kdx))
 
@@ -184,6 +290,8 @@ class IncrementDerivatives:
                 release_free_pages()
             self.solvers = [self.factorize(A) if s is None else s for s, A in zip(self.solvers, self.systems, strict=True)]
             self.systems = None                 # the factors are what is kept
+            if self.keep is not None:
+                self.keep(self.solvers)
         return self.solvers[k]
 
     def solve(self, k: int, b: np.ndarray) -> np.ndarray:
@@ -218,7 +326,8 @@ def derivatives_of(problem: MotionProblem, result, kernel: IncrementKernel) -> I
     ``result.derivatives``."""
     if result.derivatives is None:
         result.derivatives = IncrementDerivatives(problem, result.trajectory, kernel, result.blend,
-                                                  result.solver.factorize, result.record)
+                                                  result.solver.factorize, result.record,
+                                                  getattr(result.solver, "keep", None))
         result.record = None                    # in the store now (its matrices are not kept twice)
     return result.derivatives
 
