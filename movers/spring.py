@@ -106,7 +106,8 @@ class SpringMover(Mover):
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None, initial=None,
              solver=None) -> MoveResult:
         """The motion in increments; ``solver``: :meth:`increment_solvers` of ``problem`` (earlier
-        moves' factorizations, preconditioning this one's solves), or None; ``initial`` unused."""
+        moves' factorizations, preconditioning this one's solves; any other is not used, nor is
+        ``initial``)."""
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
         recycling = self._solver(problem)
