@@ -181,7 +181,7 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
     Ke = K0 * problem.stiffening[:, None, None]
     step_p = np.zeros_like(step)
     step_p[bc.fixed] = step[bc.fixed]
-    rhs = -element_apply(Ke, step_p, dofs)
+    rhs = -element_apply(Ke, step_p, dofs) if np.any(step_p) else np.zeros_like(step)   # (blended: none)
     if blend is not None:
         rhs = blend.residual(rhs, step, 0.0)      # W (-K_fp d_p) + S_c d
     rhs[bc.fixed] = step[bc.fixed]
