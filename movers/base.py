@@ -145,7 +145,7 @@ class Mover(ABC):
     def increment_solvers(self, problem: MotionProblem):
         """What a mover in increments keeps across its moves at one design (``problem``'s
         densities), passed back to :meth:`move` as ``solver``
-        (:class:`movers.incremental.IncrementSolvers`); None for a mover that keeps nothing."""
+        (:class:`movers.increment_solvers.IncrementSolvers`); None for a mover that keeps nothing."""
         return None
 
     @property

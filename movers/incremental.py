@@ -49,8 +49,7 @@ from movers.base import MoveReport, element_apply, quality_record
 from movers.problem import MotionProblem
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
-from tofsi.linalg import LinearAlgebra
-from tofsi.linalg.recycling import flexible_gmres
+from movers.increment_solvers import MoveSolver
 from tofsi.linalg.superlu import release_free_pages
 
 RAW_SOLVE_TOL = 1e-13
@@ -74,98 +73,6 @@ class MoveRecord:
     matrices: list = field(default_factory=list)
     factors: dict = field(default_factory=dict)
     systems: list = field(default_factory=list)      # each increment's constrained matrix (CSR)
-
-
-class IncrementSolvers:
-    """Exact factorizations (sparse LU) of the increments' systems, kept across the moves at one
-    design (the caller keys it by the densities, :meth:`tofsi.physics.mesh_motion.MeshMotion.move`):
-    a Newton's iterates and line-search trials move the mesh for nearby structure motions, so
-    increment ``k``'s system differs little from increment ``k``'s of the move before.
-
-    A move solves increment ``k`` by flexible GMRES (to ``rtol`` relative to the right-hand side,
-    like :class:`~tofsi.linalg.RecyclingSolver`) preconditioned by the factors kept for increment
-    ``k`` -- made at increment ``k`` of an earlier move, or by the store of an earlier move's
-    derivatives (:class:`IncrementDerivatives`, which gives its factors back here) --, else by
-    the factors the move used last (an earlier increment's, as a recycling solver would), from
-    the change increment ``k`` made in the latest move (else the increment before's). Where
-    GMRES needs more than ``max_iter`` iterations the system is factorized; where it needed more
-    than ``refresh_after`` the factors used are not used for that increment again. Factors made at
-    a move's own system serve its store. Results never depend on timing, only on the moves made at
-    the design (iteration counts)."""
-
-    exact = True
-
-    def __init__(self, factorize, rtol: float = 1e-10, max_iter: int = 20, refresh_after: int = 6):
-        self.factorize, self.rtol = factorize, rtol
-        self.max_iter, self.refresh_after = max_iter, refresh_after
-        self.factors: dict[int, object] = {}          # increment -> factors of a system near its own
-        self.steps: dict[int, np.ndarray] = {}        # increment -> its change in the latest move
-
-    def move(self) -> "MoveSolver":
-        """The solver of one move (its own counts and its latest factors)."""
-        return MoveSolver(self)
-
-    def keep(self, factors) -> None:
-        """Take the factors a store made (per increment, exact at its move's systems)."""
-        self.factors.update({k: f for k, f in enumerate(factors) if f is not None})
-
-
-class MoveSolver:
-    """One move's use of :class:`IncrementSolvers`: ``solve_increment`` and the move's counts."""
-
-    exact = True
-
-    def __init__(self, bank: IncrementSolvers):
-        self.bank, self.factorize = bank, bank.factorize
-        self.factorizations = self.krylov_iterations = 0
-        self.latest = None                             # the factors the move used last
-
-    def keep(self, factors) -> None:
-        self.bank.keep(factors)
-
-    def solve_increment(self, k: int, A, b: np.ndarray, guess=None):
-        """``(A^-1 b, factors made at A or None)`` for increment ``k``'s system ``A``."""
-        bank = self.bank
-        own = bank.factors.get(k)
-        preconditioner = own if own is not None else self.latest
-        before = bank.steps.get(k)
-        if before is not None and before.shape == b.shape:
-            guess = before                            # the latest move's: nearer than the increment before
-        if preconditioner is not None and preconditioner.shape == A.shape:
-            goal = bank.rtol * float(np.linalg.norm(b))
-            x, its = flexible_gmres(A, b, preconditioner.preconditioner(), goal, bank.max_iter, bank.max_iter,
-                                    guess)
-            self.krylov_iterations += its
-            if np.all(np.isfinite(x)) and np.linalg.norm(b - A @ x) <= 1.01 * goal:
-                if its > bank.refresh_after:          # gone stale: factorize the next time instead
-                    if preconditioner is own:
-                        del bank.factors[k]
-                    self.latest = None
-                else:
-                    self.latest = preconditioner
-                bank.steps[k] = x
-                return x, None
-        made = bank.factorize(A)
-        self.factorizations += 1
-        bank.factors[k] = self.latest = made
-        bank.steps[k] = x = made.solve(b)
-        return x, made
-
-
-def solvers_for(problem: MotionProblem, params) -> IncrementSolvers | None:
-    """The :class:`IncrementSolvers` of a mover in increments (``params``: its ``tangent_solver``
-    and ``linear_tol``) on ``problem``: sparse LU on the problem's backend; None where its
-    tangent solver is iterative (AMG, or the iterative path)."""
-    la = problem.linear_algebra or LinearAlgebra.default()
-    if la.iterative or getattr(params, "tangent_solver", "direct") == "amg":
-        return None
-    return IncrementSolvers(lambda A: la.direct(A, perm=problem.ordering), rtol=getattr(params, "linear_tol", 1e-10))
-
-
-def increment_solver(solver, bank):
-    """A move's solver: its share of ``bank`` where that is an :class:`IncrementSolvers` (exact
-    factorizations kept across the moves at one design), else the recycling ``solver``."""
-    return bank.move() if isinstance(bank, IncrementSolvers) else solver
 
 
 def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.ndarray,
@@ -255,8 +162,9 @@ class IncrementDerivatives:
     the assembled ``K_k dx_k``, and ``W K_k`` of the quads with a fixed dof (the prescribed
     motion's share). ``record``: what the move kept (its element matrices, systems and
     factorizations; else they are made again); ``keep``: takes the factorizations once made
-    (:meth:`IncrementSolvers.keep`: they precondition the later moves at the design). Memory: per increment a factorization of the mesh system and
-    one sparse matrix of its pattern. The missing factorizations are made together on first use
+    (:meth:`movers.increment_solvers.IncrementSolvers.keep`: they precondition the later moves
+    at the design). Memory: per increment a factorization of the mesh system and one sparse
+    matrix of its pattern. The missing factorizations are made together on first use
     (every sweep needs them all), after the heap's free pages went back to the system
     (:func:`~tofsi.linalg.superlu.release_free_pages`: SuperLU's arrays, sized from a fill
     estimate 5-14 times what they use, would else make memory earlier arrays wrote resident

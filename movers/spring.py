@@ -25,8 +25,8 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
-from movers.incremental import (IncrementKernel, MoveRecord, increment, increment_solver, increments_jvp,
-                                increments_vjp, run_increments, solvers_for)
+from movers.increment_solvers import increment_solver, solvers_for
+from movers.incremental import IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, TriangleSplit, quad_force_derivative, quad_stiffness
 from tofsi.mesh import quality
 from tofsi.core.config import option
