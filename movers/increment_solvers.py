@@ -31,11 +31,12 @@ class IncrementSolvers:
     increment ``k``'s system differs little from increment ``k``'s of the move before.
 
     A move solves increment ``k`` by flexible GMRES (to ``rtol`` relative to the right-hand side)
-    preconditioned by the factors kept for increment
-    ``k`` -- made at increment ``k`` of an earlier move, or by the store of an earlier move's
-    derivatives (:class:`~movers.incremental.IncrementDerivatives`, which gives its factors back here) --, else by
-    the factors the move used last (an earlier increment's, as a recycling solver would), from
-    the change increment ``k`` made in the latest move (else the increment before's). Where
+    preconditioned by the factors kept for increment ``k`` -- made at increment ``k`` of an
+    earlier move, or by the store of an earlier move's derivatives
+    (:class:`~movers.incremental.IncrementDerivatives`, which gives its factors back here) --,
+    else by the factors the move used last (an earlier increment's, as a recycling solver
+    would), from the change increment ``k`` made in the latest move (else the increment
+    before's). Where
     GMRES needs more than ``max_iter`` iterations the system is factorized; where it needed more
     than ``refresh_after`` the factors used are not used for that increment again. Factors made at
     a move's own system serve its store. Results never depend on timing, only on the moves made at

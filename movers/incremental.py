@@ -219,7 +219,8 @@ class IncrementDerivatives:
             if solver.exact and hasattr(solver, "A"):
                 x = solver.preconditioner(transpose)(b)
                 A = solver.A.T if transpose else solver.A
-                trusted = bool(np.all(np.isfinite(x))) and np.linalg.norm(b - A @ x) <= RAW_SOLVE_TOL * np.linalg.norm(b)
+                residual = np.linalg.norm(b - A @ x)
+                trusted = bool(np.all(np.isfinite(x))) and residual <= RAW_SOLVE_TOL * np.linalg.norm(b)
             self.trusted[key] = trusted
             if trusted:
                 return x

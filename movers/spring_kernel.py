@@ -57,7 +57,7 @@ _ENDS = np.zeros((3, 6, 2))                # B_e: an edge's 2-vector g -> (-g on
 for _e, (_p, _q) in enumerate(EDGES):
     _ENDS[_e, 2 * _p:2 * _p + 2] = -np.eye(2)
     _ENDS[_e, 2 * _q:2 * _q + 2] = np.eye(2)
-_SIGN = np.array([[-1.0, 0.0, 1.0], [1.0, -1.0, 0.0], [0.0, 1.0, -1.0]])   # [r, e]: -1 / +1 where r is e's first / second end
+_SIGN = np.array([[-1.0, 0.0, 1.0], [1.0, -1.0, 0.0], [0.0, 1.0, -1.0]])   # [r, e]: -1 / +1 at e's first / second end
 
 
 def _rows(S: np.ndarray) -> np.ndarray:
