@@ -125,7 +125,7 @@ def v_cycle(ml: MultilevelSolver):
             bs.append(b)
             b = level.R @ (b - level.A @ x)
         x = np.asarray(coarse_solver(levels[-1].A, b), dtype=b.dtype)
-        for level, fine_x, fine_b in zip(levels[-2::-1], xs[::-1], bs[::-1]):   # up: correct, post-smooth
+        for level, fine_x, fine_b in zip(levels[-2::-1], xs[::-1], bs[::-1], strict=True):   # up: correct, post-smooth
             fine_x += level.P @ x
             level.postsmoother(level.A, fine_x, fine_b)
             x = fine_x
