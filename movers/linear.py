@@ -16,6 +16,7 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
+from movers.increment_solvers import increment_solver, solvers_for
 from movers.incremental import IncrementKernel, MoveRecord, increments_jvp, increments_vjp, run_increments
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError
@@ -38,6 +39,7 @@ class LinearElasticMover(Mover):
 
     name = "linear"
     Params = LinearParams
+    warm_starts = True          # ``solver``: the factorizations of earlier moves at the design
 
     def element_matrices(self) -> IncrementKernel:
         """Unscaled element stiffness of the current corners (complex-safe; the shape derivative
@@ -58,10 +60,18 @@ class LinearElasticMover(Mover):
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
         return self.element_matrices()(problem.points[problem.quads])
 
-    def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
+    def increment_solvers(self, problem: MotionProblem):
+        """The increments' factorizations kept across the moves at one design (sparse LU)."""
+        return solvers_for(problem, self.params) if self.path_dependent else None
+
+    def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None, initial=None,
+             solver=None) -> MoveResult:
+        """The motion (in increments); ``solver``: :meth:`increment_solvers` of ``problem`` (earlier
+        moves' factorizations, preconditioning this one's solves; any other is not used, nor is
+        ``initial``)."""
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
-        solver = self._solver(problem)
+        solver = increment_solver(self._solver(problem), solver)
         blend = self.blend(problem)
         record = MoveRecord()
         try:

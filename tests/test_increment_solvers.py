@@ -7,14 +7,18 @@ nearby move (a Newton iterate's) factorizes nothing; and its tangent is the fres
 """
 
 import numpy as np
+import pytest
 
 import movers
 from test_mover_derivatives import setup_problem
 
+IN_INCREMENTS = {"spring": {"diagonals": "both"}, "linear": {}}
 
-def test_kept_factors_give_the_fresh_move_and_spare_the_later_moves_factorizations():
+
+@pytest.mark.parametrize("name", sorted(IN_INCREMENTS))
+def test_kept_factors_give_the_fresh_move_and_spare_the_later_moves_factorizations(name):
     mesh, problem, u = setup_problem(blended=True)
-    mover = movers.create("spring", increments=4, diagonals="both")
+    mover = movers.create(name, increments=4, **IN_INCREMENTS[name])
     kept = mover.increment_solvers(problem)
     assert kept is not None and kept.rtol == 1e-13            # a thousandth of linear_tol
     first = mover.move(problem, u, solver=kept)
@@ -23,7 +27,7 @@ def test_kept_factors_give_the_fresh_move_and_spare_the_later_moves_factorizatio
     assert len(kept.factors) == 4                              # every increment's factors, kept
     nearby = u * (1 + 1e-4)                                    # a Newton step further
     again = mover.move(problem, nearby, solver=kept)
-    fresh = movers.create("spring", increments=4, diagonals="both", linear_tol=1e-15).move(problem, nearby)
+    fresh = movers.create(name, increments=4, linear_tol=1e-15, **IN_INCREMENTS[name]).move(problem, nearby)
     assert again.report.factorizations == 0 and fresh.report.factorizations >= 1   # teeth
     scale = np.abs(fresh.displacement).max()
     assert np.abs(again.displacement - fresh.displacement).max() <= 1e-12 * scale
@@ -38,3 +42,4 @@ def test_a_mover_without_kept_factors_and_an_iterative_tangent_keep_none():
     assert movers.create("yeoh").increment_solvers(problem) is None
     assert movers.create("spring", increments=1, diagonals="both").increment_solvers(problem) is None
     assert movers.create("spring", increments=3, tangent_solver="amg").increment_solvers(problem) is None
+    assert movers.create("linear", increments=1).increment_solvers(problem) is None
