@@ -318,3 +318,38 @@ def test_the_distributed_fsi_problem_refuses_what_it_cannot_do_before_needing_pe
     loaded = tofsi.load_scene(FSI, ["mesh.h_min=0.1", "mesh.h_max=0.1", *sets])
     with pytest.raises(InputError, match=key):
         DistributedFsiProblem(loaded)
+
+
+@pytest.mark.parametrize("mover", [[], ["mover.name=linear"]])
+def test_mover_by_slabs_equals_the_serial_mover(tmp_path, mover):
+    """The headline scene's Yeoh mover (density blend, stiffened layers grown from the
+    densities) and its linear mover, 20 x 10 elements, at a wall design and a prescribed
+    displacement bending it 8 cm downstream: on two ranks (element kernels on each rank's
+    quads, the tangent by MUMPS across the ranks, Newton with load steps) the motion equals
+    the serial mover's move, and the transposed solve and partials at it the serial
+    ``MeshMotion``'s (``transposed_solve``, ``partials_transpose``), to 1e-10 relative."""
+    sets = ["mesh.h_min=0.1", "mesh.h_max=0.1", "mover.yeoh.newton_tol=1e-13", *mover]
+    out = tmp_path / "mover.npz"
+    run_on_two_ranks("tests/mpi_slab_mover.py", FSI, str(out), *sets)
+    got = np.load(out)
+    motion = tofsi.Problem(tofsi.load_scene(FSI, sets)).model.motion
+    rho, u = got["rho"], got["u"]
+    x = motion.move(u, rho).displacement.ravel()
+    assert np.abs(x).max() > 0.01                                     # the mesh moved
+    assert np.linalg.norm(got["x"] - x) <= 1e-10 * np.linalg.norm(x)
+    lam = motion.transposed_solve(x, rho, got["rhs"])
+    u_bar, rho_bar = motion.partials_transpose(x, u, rho, lam)
+    for name, want in (("lam", lam), ("u_bar", u_bar), ("rho_bar", rho_bar)):
+        assert np.linalg.norm(got[name] - want) <= 1e-10 * np.linalg.norm(want), name
+
+
+def test_a_failing_mover_by_slabs_fails_on_every_rank_alike(tmp_path):
+    """One Newton iteration and no cutback cannot move the Yeoh mesh 8 cm: every rank raises
+    the same NumericalError, with the mover's diagnosis (no rank left waiting)."""
+    sets = ["mesh.h_min=0.1", "mesh.h_max=0.1", "mover.yeoh.newton_tol=1e-13", "mover.yeoh.max_newton=1",
+            "mover.yeoh.max_cutbacks=0"]
+    out = tmp_path / "mover.npz"
+    run_on_two_ranks("tests/mpi_slab_mover.py", FSI, str(out), *sets)
+    messages = [Path(f"{out}.rank{r}.txt").read_text() for r in range(2)]
+    assert messages[0] == messages[1]
+    assert "yeoh mover (by slabs): no convergence beyond load 0 after 1 cutbacks" in messages[0]
