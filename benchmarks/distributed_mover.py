@@ -12,15 +12,18 @@ structural displacement bending the wall 8 cm downstream (``tests/mpi_slab_mover
 move from rest, one transposed solve and the transposed partials, either by slabs
 (:class:`tofsi.parallel.slab_mover.SlabMover`) or replicated (the serial
 :class:`~tofsi.physics.mesh_motion.MeshMotion` on every rank, as the distributed FSI problem
-ran it before). Each rank prints its process CPU seconds of the mover's work and its peak
-resident memory (``ru_maxrss``) after the setup and after the mover's work, in GB: their
-difference is what the mover's work adds to the rank's peak.
+ran it before). Each rank prints its process CPU seconds of the mover's work, its peak
+resident memory (``ru_maxrss``) after the setup and after the mover's work, and the mover's own
+high-water mark: the resident set sampled every 5 ms during the work above the resident set at
+its start (the heap's free pages given back first, ``malloc_trim``), in GB.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import resource
+import threading
 import time
 from pathlib import Path
 
@@ -29,6 +32,24 @@ SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "beam_in_c
 
 def peak() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+
+
+def resident() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e9
+
+
+class Sampler(threading.Thread):
+    """The largest resident set seen every 5 ms until stopped [GB]."""
+
+    def __init__(self):
+        super().__init__(daemon=True)
+        self.high, self.running = resident(), True
+
+    def run(self):
+        while self.running:
+            self.high = max(self.high, resident())
+            time.sleep(0.005)
 
 
 def main() -> None:
@@ -53,6 +74,11 @@ def main() -> None:
     X, Y = mesh.points[:, 0], mesh.points[:, 1]
     u = np.column_stack([0.08 * (Y / 0.6) ** 2 * np.exp(-((X - 1.0) / 0.3) ** 2), 0.0 * X]).ravel()
     rhs = np.random.default_rng(3).standard_normal(u.size)
+    from tofsi.linalg.superlu import release_free_pages
+    release_free_pages()
+    start = resident()
+    sampler = Sampler()
+    sampler.start()
     before, c0, t0 = peak(), time.process_time(), time.perf_counter()
     if args.mover == "slabs":
         x, lin, _ = problem.mover.move(u, rho)
@@ -63,10 +89,12 @@ def main() -> None:
         lam = motion.transposed_solve(x, rho, rhs)
         _, rho_bar = motion.partials_transpose(x, u, rho, lam)
     cpu, wall_time = time.process_time() - c0, time.perf_counter() - t0
+    sampler.running = False
+    sampler.join()
     comm = PETSc.COMM_WORLD
     print(f"rank {comm.getRank()}/{comm.getSize()} {args.mover}: {mesh.n_elements} elements, mover {wall_time:.1f} s "
           f"wall, {cpu:.1f} s CPU, peak {before:.3f} GB after setup, {peak():.3f} GB after the mover "
-          f"(+{peak() - before:.3f}), |x| {np.linalg.norm(x):.12g}, |rho_bar| {np.linalg.norm(rho_bar):.12g}",
+          f"(+{peak() - before:.3f}), the mover's own +{sampler.high - start:.3f} GB, |x| {np.linalg.norm(x):.12g}, |rho_bar| {np.linalg.norm(rho_bar):.12g}",
           flush=True)
 
 
