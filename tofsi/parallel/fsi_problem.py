@@ -139,22 +139,23 @@ class DistributedFsiProblem(DistributedFlowProblem):
             w, report = self._flow(X, rho, params, it == 0)
             f, u = self._structure(w, X, rho, params)
             if self.mover is None:                                     # a move in increments: replicated
-                x_new, lin_x, _ = mover.solve({"u": u, "x": x}, rho, params, guess=x.reshape(-1, 2),
-                                              previous=lin_x)
+                x_new, lin_x, moved = mover.solve({"u": u, "x": x}, rho, params, guess=x.reshape(-1, 2),
+                                                  previous=lin_x)
             else:
-                x_new, lin_x, _ = self.mover.move(u, rho, guess=x)
+                x_new, lin_x, moved = self.mover.move(u, rho, guess=x)
             r = x_new - x
             change = float(np.linalg.norm(r)) / max(float(np.linalg.norm(x_new)), 1e-300)
             history.append(change)
-            log.info("distributed two-way sweep %d: |x~ - x|/|x~| = %.3e (Newton %d)", it, change,
-                     report["newton_iterations"])
+            log.info("distributed two-way sweep %d: |x~ - x|/|x~| = %.3e (flow Newton %d, mover Newton %d)", it,
+                     change, report["newton_iterations"], moved["newton_iterations"])
             if not np.isfinite(change):
                 raise NumericalError("distributed two-way solve: non-finite mesh motion", {"history": history})
             if change <= self.tol:
                 self.model.unfolded(State(rho, {"x": x}))            # a folded mesh is a failure, as serially
                 self.x = x
                 return {"w": w, "u": u, "x": x, "f": f, "lin_x": lin_x,
-                        "reports": {"w": report, "coupled": {"sweeps": it + 1, "history": history}}}
+                        "reports": {"w": report, "mover": moved,
+                                    "coupled": {"sweeps": it + 1, "history": history}}}
             if previous is not None:                                    # IQN-ILS
                 dR.append(r - previous[0])
                 dX.append(x_new - previous[1])
