@@ -353,11 +353,19 @@ def wait_for(path, timeout=60.0):
         time.sleep(0.05)
 
 
+# a run that goes on until it is signalled (no stopping test can pass), however slow the second
+# process that meets it is to start on a loaded machine (with 40 iterations the first one finished
+# in 5 s, and a second run started under a load of 8 found the folder free)
+NO_STOPPING_TEST = ["--set", "optimizer.tol_change=1e-300", "--set", "optimizer.tol_objective=1e-300",
+                    "--set", "optimizer.stall_iterations=100"]
+UNTIL_STOPPED = [*NO_STOPPING_TEST, "--set", "optimizer.max_iter=10000"]
+
+
 def test_a_second_run_into_a_busy_folder_exits_2_naming_the_first(tmp_path):
     import json
     import signal
     first = subprocess.Popen([sys.executable, "-m", "tofsi.cli", "optimize", OPT, "--output", "out", *TINY_OPT,
-                              "--set", "optimizer.max_iter=40", "-q"], cwd=tmp_path,
+                              *UNTIL_STOPPED, "-q"], cwd=tmp_path,
                              stderr=subprocess.PIPE, text=True)
     try:
         wait_for(tmp_path / "out" / ".tofsi.lock")
@@ -379,12 +387,12 @@ def test_the_lock_of_a_killed_run_is_taken_over(tmp_path):
     (here --resume) takes it over and says whose it was."""
     import signal
     first = subprocess.Popen([sys.executable, "-m", "tofsi.cli", "optimize", OPT, "--output", "out", *TINY_OPT,
-                              "--set", "optimizer.max_iter=40", "-q"], cwd=tmp_path)
+                              *UNTIL_STOPPED, "-q"], cwd=tmp_path)
     wait_for(tmp_path / "out" / "checkpoint.npz")
     first.send_signal(signal.SIGKILL)
     first.wait()
     assert (tmp_path / "out" / ".tofsi.lock").exists()
-    again = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, "--set", "optimizer.max_iter=3",
+    again = tofsi(["optimize", OPT, "--output", "out", *TINY_OPT, *NO_STOPPING_TEST, "--set", "optimizer.max_iter=3",
                    "--resume"], tmp_path)
     assert again.returncode == 0, again.stderr
     assert f"took over the lock of tofsi optimize (pid {first.pid}" in again.stderr

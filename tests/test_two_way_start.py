@@ -141,3 +141,31 @@ def test_a_ramped_solve_leaves_its_failed_attempt_to_no_cycle(one_way_start):
     (_, state), cyclic = cyclic_garbage(lambda: first_two_way(gamma, guess, "structure.youngs_modulus=2e3"))
     assert state.reports["load_ramp"]["full_load_failure"]           # teeth: the attempt failed
     assert not {"NumericalError", "State", "traceback"} & set(cyclic), cyclic
+
+
+def test_when_the_direct_attempt_and_the_ramp_fail_the_full_inflow_is_tried_with_the_blocks_continuation():
+    """A solve (a stand-in) that converges only at the full inflow with the blocks' own
+    continuation (the route the direct attempt skips to fail fast): the ramp's failure is not
+    the end; where that fails too, the ramp's failure is raised with the last attempt's."""
+    from tofsi.coupling.load_ramp import ramped
+    rho = np.ones(3)
+    one_way = State(rho, {"w": np.ones(4), "u": np.ones(2), "x": None})
+    calls = []
+
+    def solve(params, guess, rho, direct=False):
+        calls.append((params.load, direct))
+        if direct or params.load < 1.0:
+            raise NumericalError("does not converge", {})
+        return State(rho, {"w": np.ones(4), "u": np.ones(2), "x": np.ones(2)}, params, True)
+
+    state = ramped(solve, Continuation(), one_way, 0.5, rho, ("w", "u", "x"), ("w",))
+    assert calls == [(1.0, True), (0.5, False), (1.0, False)]        # direct, the ramp's half, the last resort
+    assert state.reports["load_ramp"]["own_continuation"]
+    assert "load continuation stopped at 0 of the inflow" in state.reports["load_ramp"]["ramp_failure"]
+
+    def never(params, guess, rho, direct=False):
+        raise NumericalError(f"fails at {params.load} ({'direct' if direct else 'own continuation'})", {})
+
+    with pytest.raises(NumericalError, match="load continuation stopped") as failed:
+        ramped(never, Continuation(), one_way, 0.5, rho, ("w", "u", "x"), ("w",))
+    assert failed.value.diagnostic["own_continuation_failure"] == "fails at 1.0 (own continuation)"

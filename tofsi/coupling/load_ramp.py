@@ -47,7 +47,10 @@ next by ``GROWTH``, a failed one is cut back to half, down to
 densities). Steps and cutbacks go to the state's report (``load_ramp`` or
 ``density_ramp``) and the log (``-v``); the converged state is the problem's
 own (the caller's densities, at the full load and the caller's continuation
-record), so its adjoint and every kept value are those of the problem.
+record), so its adjoint and every kept value are those of the problem. When
+the inflow ramp fails after a direct attempt, the full inflow is tried once
+more from the one-way state with the blocks' own continuation (the route the
+direct attempt skips to fail fast) before the ramp's failure is raised.
 """
 
 from __future__ import annotations
@@ -108,9 +111,29 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
              "load_steps": err.diagnostic["steps"], "full_load_failure": first_failure},
             state=err.state)
         failure.accepted = err.accepted
-        raise failure from err.__cause__
+        if not _partial(guess, fields):
+            raise failure from err.__cause__
+        state = _with_own_continuation(solve, params, guess, rho, failure, err.__cause__)
+        state.reports["load_ramp"] = {"steps": [], "cutbacks": 0, "full_load_failure": first_failure,
+                                      "ramp_failure": str(failure), "own_continuation": True}
+        return state
     state.reports["load_ramp"] = {**report, "full_load_failure": first_failure}
     return state
+
+
+def _with_own_continuation(solve: Solve, params: Continuation, guess: State, rho, ramp_failure: NumericalError,
+                           cause: BaseException | None) -> State:
+    """The last resort of a first two-way solve whose direct attempt and inflow ramp both failed:
+    the full inflow from the one-way state with the blocks' own continuation (a finite-strain
+    structure's load steps, the mover's cutbacks), which the direct attempt skipped. Raises
+    ``ramp_failure`` (the ramp's account, the more telling one; from ``cause``, its failed step's
+    error) when this fails too."""
+    log.info("%s; the full inflow with the blocks' own continuation", ramp_failure)
+    try:
+        return solve(params, guess, rho)
+    except NumericalError as err:
+        ramp_failure.diagnostic["own_continuation_failure"] = str(err)
+        raise ramp_failure from cause
 
 
 def _partial(guess: State | None, fields) -> bool:
