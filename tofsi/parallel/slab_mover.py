@@ -50,6 +50,7 @@ from tofsi.core.kept import Kept
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.complex_step import derivative
 from tofsi.mesh import quality
+from tofsi.parallel.mover_newton import SlabNewton
 from tofsi.parallel.slab_matrix import SlabMatrix
 
 CORNER_CHECKED = ("yeoh",)      # movers whose serial move refuses a trial with an inverted corner
@@ -67,7 +68,7 @@ class SlabDesign:
 
 
 @dataclass
-class Evaluation:
+class MoverState:
     """The slab's element residuals ``(E_r, 8)`` and tangents (or None), and ``R`` (2n,) summed over ranks."""
 
     Re: np.ndarray
@@ -125,7 +126,7 @@ class SlabMover:
     def valid_everywhere(self, ok: bool) -> bool:
         return bool(self.mpi.allreduce(bool(ok), op=self.land))
 
-    def evaluate(self, d: SlabDesign, x: np.ndarray, tangent: bool = True) -> Evaluation | None:
+    def evaluate(self, d: SlabDesign, x: np.ndarray, tangent: bool = True) -> MoverState | None:
         """The slab's residuals (and tangents) at ``x`` (2n,), None when an element is invalid on
         any rank (the kernel undefined, e.g. Yeoh's ``det F <= 0``, or a corner Jacobian <= 0)."""
         try:
@@ -135,7 +136,7 @@ class SlabMover:
             Re, Ke, ok = None, None, False
         if not self.valid_everywhere(ok):
             return None
-        return Evaluation(Re, Ke, self.allsum(assemble_vector(self.dofs, Re, self.size)))
+        return MoverState(Re, Ke, self.allsum(assemble_vector(self.dofs, Re, self.size)))
 
     def residual(self, d: SlabDesign, R: np.ndarray, x: np.ndarray, target: np.ndarray) -> np.ndarray:
         """``D(x)`` on the free dofs, zero on the fixed ones, from the assembled ``R``."""
@@ -158,7 +159,6 @@ class SlabMover:
     # ---- the forward move -------------------------------------------------------------------------
     def move(self, u, rho, guess=None):
         """``(x (2n,), linearization, report)``: the mesh moved with the structure's ``u`` at ``rho``."""
-        from tofsi.parallel.mover_newton import SlabNewton
         d = self.design(rho)
         target = self.motion.target(u).reshape(-1)
         x, report = SlabNewton(self, d, target).move(None if guess is None else np.asarray(guess).reshape(-1))
