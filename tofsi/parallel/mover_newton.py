@@ -9,7 +9,9 @@ summed over ranks, tangents factorized by MUMPS across the ranks):
   zero is; when that fails, and without one, the motion ``lambda t`` is applied in load steps
   ``lambda = 0 -> 1`` (``increments`` at first; an easy step lengthens the next by 1.5);
 * each step starts with the tangent predictor (the fixed dofs' step and the free dofs' linear
-  response ``-A_ff^-1 (D + W K_fp d_p)``), then Newton corrections ``A dx = -D`` with the line
+  response ``-A_ff^-1 (D + W K_fp d_p)``, solved to 1e-3), then Newton corrections ``A dx = -D``
+  (solved to Eisenstat-Walker's forcing term; GMRES preconditioned by an earlier step's MUMPS
+  factors, refactorized when they go stale, as the serial mover's recycling solver) with the line
   search on the energy's slope ``g(alpha) = dx . D(x + alpha dx)`` (accept ``alpha = 1`` when
   ``|g|`` fell to a tenth, else the secant root clipped to [0.1, 4] once, then halving); a trial
   must be valid on every rank and reduce ``|D|``;
@@ -30,6 +32,7 @@ import logging
 import numpy as np
 
 from tofsi.core.errors import NumericalError
+from tofsi.core.iteration import forcing_term
 
 log = logging.getLogger(__name__)
 ROUND_OFF = 1e3 * np.finfo(float).eps        # attainable |D| relative to the forces' size
@@ -45,16 +48,17 @@ class SlabNewton:
         p = mover.params
         self.p = {key: getattr(p, key, default) for key, default in DEFAULTS.items()}
         self.report = {"mover": mover.mover.name, "converged": False, "increments": 0, "newton_iterations": 0,
-                       "linear_solves": 0, "factorizations": 0, "cutbacks": 0, "warm_start": False,
-                       "residual_history": [], "message": ""}
+                       "linear_solves": 0, "factorizations": 0, "krylov_iterations": 0, "cutbacks": 0,
+                       "warm_start": False, "residual_history": [], "message": ""}
 
     def move(self, initial: np.ndarray | None):
         """``(x (2n,), report)``; raises NumericalError (the report in its diagnostic) on failure."""
-        start = self.m.matrix.factorizations
+        start, krylov = self.m.matrix.factorizations, self.m.matrix.krylov_iterations
         x = None if initial is None else self.warm_start(initial)
         if x is None:
             x = self.load_steps()
-        self.report.update(converged=True, factorizations=self.m.matrix.factorizations - start)
+        self.report.update(converged=True, factorizations=self.m.matrix.factorizations - start,
+                           krylov_iterations=self.m.matrix.krylov_iterations - krylov)
         return x, self.report
 
     # ---- the pieces ------------------------------------------------------------------------------
@@ -73,10 +77,12 @@ class SlabNewton:
         forces = float(np.linalg.norm(e.R))
         return max(self.p["newton_tol"] * max(scale, forces), ROUND_OFF * np.sqrt(e.R.size) * forces)
 
-    def linear_solve(self, Ke, rhs):
-        self.m.factorize(self.d, Ke)
+    def linear_solve(self, Ke, rhs, rtol: float):
+        """The tangent's solve to ``rtol``: GMRES preconditioned by an earlier step's factors,
+        refactorized when they went stale (:meth:`~tofsi.parallel.slab_matrix.SlabMatrix.solve`)."""
+        self.m.assemble(self.d, Ke)
         self.report["linear_solves"] += 1
-        return self.m.solve(rhs)
+        return self.m.solve(rhs, rtol=rtol)
 
     def nearer(self, x0) -> bool:
         carried = self.m.is_fixed | (self.d.diag > 0)
@@ -140,7 +146,7 @@ class SlabNewton:
         scale = max(np.linalg.norm(jump), np.linalg.norm(r0), np.linalg.norm(e0.R[fixed]), 1e-300)
         if not np.any(step[fixed]) and np.linalg.norm(r0) <= self.tolerance(e0, scale):
             return x0, e0, [float(np.linalg.norm(r0))], ""            # already there (a warm start)
-        x = x0 + self.linear_solve(e0.Ke, rhs)                   # tangent predictor
+        x = x0 + self.linear_solve(e0.Ke, rhs, 1e-3)             # tangent predictor (loose)
         x[fixed] = load * self.target[fixed]
         e = self.m.evaluate(self.d, x)
         history: list[float] = []
@@ -158,7 +164,7 @@ class SlabNewton:
                 return x, e, history, ""
             if it == self.p["max_newton"]:
                 return None, None, history, f"{it} Newton iterations at load {load:.4g} did not converge"
-            dx = self.linear_solve(e.Ke, -r)
+            dx = self.linear_solve(e.Ke, -r, forcing_term(history, target))
             dx[fixed] = 0.0
             self.report["newton_iterations"] += 1
             found = self.line_search(x, dx, r, norm, load)

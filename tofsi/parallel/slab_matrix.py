@@ -19,6 +19,9 @@ import numpy as np
 
 from tofsi.parallel.partition import column_cuts, rank_numbering, row_counts
 
+MAX_KRYLOV = 20      # GMRES iterations with earlier factors before refactorizing
+STALE_AFTER = 6      # more than these: the next matrix is refactorized
+
 
 def node_owners(mesh, ranks: int) -> np.ndarray:
     """``(n,)`` the rank owning each mesh node (the slab of its element column; on a cut, the right one)."""
@@ -52,17 +55,18 @@ class SlabMatrix:
         self.mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         self.b, self.x = self.mat.createVecLeft(), self.mat.createVecRight()
         self.gather, self.whole = PETSc.Scatter.toAll(self.x)
-        self.ksp = None
-        self.factorizations = 0
+        self.ksp, self.pmat = None, None
+        self.factorizations, self.krylov_iterations = 0, 0
+        self.fresh, self.stale = False, False        # the factors are of the assembled matrix / worn out
 
     def owned(self, v: np.ndarray) -> np.ndarray:
         """The owned entries ``[lo, hi)`` (new numbering) of a replicated vector (serial numbering)."""
         return np.asarray(v)[self.old_of_new[self.lo:self.hi]]
 
-    def factorize(self, dofs: np.ndarray, Ke: np.ndarray, diagonal: np.ndarray | None = None) -> None:
+    def assemble(self, dofs: np.ndarray, Ke: np.ndarray, diagonal: np.ndarray | None = None) -> None:
         """Assemble ``sum_e Ke_e`` over the slab's elements (dofs ``(E_r, 8)``, serial numbering)
         plus ``diag(diagonal)`` (replicated ``(2n,)``, its owned entries), the Dirichlet rows and
-        columns eliminated, and its LU (MUMPS, across the ranks)."""
+        columns eliminated; the factors are kept (they precondition :meth:`solve` with ``rtol``)."""
         from petsc4py import PETSc
         rows = self.new_of_old[dofs].astype(PETSc.IntType)
         self.mat.zeroEntries()
@@ -72,23 +76,60 @@ class SlabMatrix:
                               addv=PETSc.InsertMode.ADD_VALUES)          # every diagonal slot, kept by the LU
         self.mat.assemble()
         self.mat.zeroRowsColumns(self.fixed_owned, diag=1.0)
+        self.fresh = False
+
+    def factorize(self, dofs: np.ndarray, Ke: np.ndarray, diagonal: np.ndarray | None = None) -> None:
+        """:meth:`assemble`, then the LU of the matrix (MUMPS, across the ranks)."""
+        self.assemble(dofs, Ke, diagonal)
+        self.refactor()
+
+    def refactor(self) -> None:
+        """The LU of the assembled matrix (its copy ``P`` is what the factors belong to)."""
+        from petsc4py import PETSc
         if self.ksp is None:
+            self.pmat = self.mat.duplicate(copy=True)
             self.ksp = PETSc.KSP().create(comm=self.comm)
-            self.ksp.setType("preonly")
             self.ksp.getPC().setType("lu")
             self.ksp.getPC().setFactorSolverType("mumps")
-        self.ksp.setOperators(self.mat)
+            self.ksp.setOperators(self.mat, self.pmat)
+        else:
+            self.mat.copy(self.pmat, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        self.ksp.setType("preonly")
         self.ksp.setUp()
         self.factorizations += 1
+        self.fresh, self.stale = True, False
 
-    def solve(self, b: np.ndarray, transpose: bool = False) -> np.ndarray:
-        """``A^-1 b`` (or ``A^-T b``), ``b`` and the result replicated ``(2n,)`` in the serial numbering."""
+    def solve(self, b: np.ndarray, transpose: bool = False, rtol: float | None = None) -> np.ndarray:
+        """``A^-1 b`` (or ``A^-T b``), ``b`` and the result replicated ``(2n,)`` in the serial numbering.
+
+        Exact (the LU of ``A``, refactorized if the factors are of an earlier matrix) without
+        ``rtol``; with it, GMRES to ``rtol`` preconditioned by the kept factors (an earlier
+        Newton step's), refactorizing when it needs more than :data:`MAX_KRYLOV` iterations
+        (and at the next matrix when it needed more than :data:`STALE_AFTER`), as
+        :class:`tofsi.linalg.RecyclingSolver` does serially."""
         from petsc4py import PETSc
         self.b.setArray(self.owned(np.asarray(b, dtype=float)))
-        (self.ksp.solveTranspose if transpose else self.ksp.solve)(self.b, self.x)
+        done = False
+        if rtol is not None and self.ksp is not None and not self.fresh and not self.stale:
+            self.ksp.setType("gmres")
+            self.ksp.setPCSide(PETSc.PC.Side.RIGHT)             # rtol on the true residual
+            self.ksp.setTolerances(rtol=rtol, atol=0.0, max_it=MAX_KRYLOV)
+            self.ksp.setUp()                                 # the factors of P are kept
+            (self.ksp.solveTranspose if transpose else self.ksp.solve)(self.b, self.x)
+            its = self.ksp.getIterationNumber()
+            self.krylov_iterations += its
+            self.stale = its > STALE_AFTER
+            done = self.ksp.getConvergedReason() > 0
+        if not done:
+            if not self.fresh:
+                self.refactor()
+            elif self.ksp.getType() != "preonly":
+                self.ksp.setType("preonly")
+                self.ksp.setUp()
+            (self.ksp.solveTranspose if transpose else self.ksp.solve)(self.b, self.x)
         reason = self.ksp.getConvergedReason()
         if reason < 0:
             from tofsi.core.errors import NumericalError
-            raise NumericalError(f"MUMPS solve across the ranks failed (KSP reason {reason})", {"reason": reason})
+            raise NumericalError(f"solve across the ranks failed (KSP reason {reason})", {"reason": reason})
         self.gather.scatter(self.x, self.whole, PETSc.InsertMode.INSERT_VALUES, PETSc.ScatterMode.FORWARD)
         return self.whole.getArray()[self.new_of_old].copy()

@@ -153,8 +153,14 @@ class SlabMover:
         self.matrix.factorize(self.dofs, Ke * d.weight[self.dofs][:, :, None], d.diag)
         self.factored_at = at
 
-    def solve(self, b: np.ndarray, transpose: bool = False) -> np.ndarray:
-        return self.matrix.solve(b, transpose)
+    def assemble(self, d: SlabDesign, Ke: np.ndarray) -> None:
+        """``P_f (W K + S_c) P_f + P_p`` across the ranks, the earlier factors kept (a Newton step's)."""
+        self.matrix.assemble(self.dofs, Ke * d.weight[self.dofs][:, :, None], d.diag)
+        self.factored_at = None
+
+    def solve(self, b: np.ndarray, transpose: bool = False, rtol: float | None = None) -> np.ndarray:
+        """The assembled matrix's (transposed) solve: exact, or GMRES to ``rtol`` with kept factors."""
+        return self.matrix.solve(b, transpose, rtol)
 
     # ---- the forward move -------------------------------------------------------------------------
     def move(self, u, rho, guess=None):
