@@ -22,7 +22,8 @@ summed over ranks, tangents factorized by MUMPS across the ranks):
   alike, since every decision reads replicated values with the same bits.
 
 A mover without these parameters (linear elasticity, the spring in one increment) takes
-Yeoh's defaults; its residual is linear, so the predictor solves it and Newton only checks.
+Yeoh's defaults; its residual is linear and its tangent constant (the kept factors are exact),
+so the predictor and at most a Newton step or two solve it.
 """
 
 from __future__ import annotations
