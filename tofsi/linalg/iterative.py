@@ -73,7 +73,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from tofsi.core.errors import NumericalError
-from tofsi.linalg.amg import ONE_SWEEP, smoothed_aggregation
+from tofsi.linalg.amg import ONE_SWEEP, smoothed_aggregation, v_cycle
 from tofsi.linalg.block_matrix import SaddlePointMatrix
 from tofsi.linalg.krylov import gmres
 
@@ -155,7 +155,7 @@ class BlockSaddlePreconditioner:
         self.asymmetry = asymmetry(self.A)
         nearly_symmetric = self.asymmetry <= SHARED_HIERARCHY_ASYMMETRY
         self._ml = _amg(self.A, velocity_near_null(nv), symmetric=nearly_symmetric)
-        self._cycle = self._ml.aspreconditioner(cycle="V").matvec
+        self._cycle = v_cycle(self._ml)
         self._cycle_t = self._cycle if nearly_symmetric else None
         self._darcy = None
         if darcy_weights is not None:
@@ -179,7 +179,7 @@ class BlockSaddlePreconditioner:
         if kind == "direct":
             from tofsi.linalg.direct import DirectSolver
             return DirectSolver(L).preconditioner(False)
-        return _amg(L, symmetric=True).aspreconditioner(cycle="V").matvec
+        return v_cycle(_amg(L, symmetric=True))
 
     def _bytes(self) -> int:
         total = sum(M.data.nbytes + M.indices.nbytes + M.indptr.nbytes for M in (self.A, self.B))
@@ -210,7 +210,7 @@ class BlockSaddlePreconditioner:
         symmetric, else of ``A^T``'s), then the pressure."""
         nv = self.nv
         if self._cycle_t is None:
-            self._cycle_t = _amg(self.A.T.tocsr(), velocity_near_null(self.nv)).aspreconditioner(cycle="V").matvec
+            self._cycle_t = v_cycle(_amg(self.A.T.tocsr(), velocity_near_null(self.nv)))
         u = self._cycle_t(r[:nv])
         p = self._schur(r[nv:] - self.B @ u)
         return np.concatenate([u, p])
