@@ -35,9 +35,12 @@ class SlabMatrix:
 
     halo_dofs : element dofs (serial numbering) of every element touching a dof this rank owns
     fixed : the Dirichlet dofs (serial numbering)
+    recycle : keep the factors' matrix beside the assembled one, so that a later matrix's solve
+        (with ``rtol``) is GMRES preconditioned by them (a Newton's tangents); without it the
+        factors are of the assembled matrix itself and every solve is exact
     """
 
-    def __init__(self, comm, mesh, halo_dofs: np.ndarray, fixed: np.ndarray):
+    def __init__(self, comm, mesh, halo_dofs: np.ndarray, fixed: np.ndarray, recycle: bool = False):
         from petsc4py import PETSc
         self.comm, rank, ranks = comm, comm.getRank(), comm.getSize()
         self.new_of_old, ranges = rank_numbering(np.repeat(node_owners(mesh, ranks), 2), ranks)
@@ -55,7 +58,7 @@ class SlabMatrix:
         self.mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         self.b, self.x = self.mat.createVecLeft(), self.mat.createVecRight()
         self.gather, self.whole = PETSc.Scatter.toAll(self.x)
-        self.ksp, self.pmat = None, None
+        self.ksp, self.pmat, self.recycle = None, None, recycle
         self.factorizations, self.krylov_iterations = 0, 0
         self.fresh, self.stale = False, False        # the factors are of the assembled matrix / worn out
 
@@ -84,15 +87,15 @@ class SlabMatrix:
         self.refactor()
 
     def refactor(self) -> None:
-        """The LU of the assembled matrix (its copy ``P`` is what the factors belong to)."""
+        """The LU of the assembled matrix (with ``recycle``, of its copy ``P``, which later assemblies leave alone)."""
         from petsc4py import PETSc
         if self.ksp is None:
-            self.pmat = self.mat.duplicate(copy=True)
+            self.pmat = self.mat.duplicate(copy=True) if self.recycle else self.mat
             self.ksp = PETSc.KSP().create(comm=self.comm)
             self.ksp.getPC().setType("lu")
             self.ksp.getPC().setFactorSolverType("mumps")
             self.ksp.setOperators(self.mat, self.pmat)
-        else:
+        elif self.recycle:
             self.mat.copy(self.pmat, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         self.ksp.setType("preonly")
         self.ksp.setUp()
@@ -110,7 +113,7 @@ class SlabMatrix:
         from petsc4py import PETSc
         self.b.setArray(self.owned(np.asarray(b, dtype=float)))
         done = False
-        if rtol is not None and self.ksp is not None and not self.fresh and not self.stale:
+        if rtol is not None and self.recycle and self.ksp is not None and not self.fresh and not self.stale:
             self.ksp.setType("gmres")
             self.ksp.setPCSide(PETSc.PC.Side.RIGHT)             # rtol on the true residual
             self.ksp.setTolerances(rtol=rtol, atol=0.0, max_it=MAX_KRYLOV)

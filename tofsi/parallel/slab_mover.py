@@ -97,7 +97,7 @@ class SlabMover:
         self.is_fixed = np.zeros(self.size, dtype=bool)
         self.is_fixed[self.fixed] = True
         halo = element_dofs(base.quads[in_halo[base.element_ids]], 2)
-        self.matrix = SlabMatrix(coupling.engine.comm, mesh, halo, self.fixed)
+        self.matrix = SlabMatrix(coupling.engine.comm, mesh, halo, self.fixed, recycle=True)
         self.corners = self.mover.name in CORNER_CHECKED
         self.kept = Kept()                       # the design's SlabDesign, keyed by the densities
         self.factored_at = None                  # the state whose tangent the factors hold
