@@ -100,7 +100,7 @@ class FloorCounter:
         factorizations = sum(r["seconds"] for k, r in rows.items() if k.startswith("factorization"))
         per_iteration = (t1 - t0) / n
         return {"seconds_per_iteration": per_iteration, "factorization_s": factorizations,
-                "iteration_over_factorizations": per_iteration / factorizations, "pieces": rows}
+                "iteration_over_factorizations": per_iteration / factorizations if factorizations else float("inf"), "pieces": rows}
 
 
 def main() -> None:
@@ -229,12 +229,16 @@ def large(scene, args, write_json) -> None:
     if floor:
         floor.install(args.backend)
     rows = []
+    profiler = cProfile.Profile(time.process_time) if args.profile else None   # warm two-way iterations, CPU
     t0 = time.process_time()
     with tempfile.TemporaryDirectory() as tmp:
         def on_iteration(it):
             rows.append((it.stage, it.coupling, time.process_time(), it.load_steps, it.fallbacks))
             if floor and it.coupling == "two-way":
                 floor.mark()
+            if profiler and it.coupling == "two-way":
+                done = sum(r[1] == "two-way" for r in rows) >= args.iterations
+                profiler.disable() if done else profiler.enable()
         Optimizer(problem, tmp, on_iteration=on_iteration).design_after(ONE_WAY_STAGES + 1)
     cpu = [b[2] - a[2] for a, b in zip([(0, "", t0)] + rows[:-1], rows)]
     one_way = [c for c, r in zip(cpu, rows) if r[0] == ONE_WAY_STAGES - 1][1:]
@@ -255,6 +259,9 @@ def large(scene, args, write_json) -> None:
     tag = "".join(f"_{s.replace('=', '-')}" for s in args.set)
     row["set"] = args.set
     write_json(args.output / f"optimize_large_{args.elements_x}_{args.backend}{tag}.json", row)
+    if profiler:
+        profiler.dump_stats(args.output / f"optimize_large_{args.elements_x}{tag}.prof")
+        pstats.Stats(profiler).sort_stats("tottime").print_stats(int(__import__("os").environ.get("PROFILE_LINES", 15)))
 
 
 def high_water_mark_gb(reset: bool = False) -> float:

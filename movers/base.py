@@ -142,6 +142,12 @@ class Mover(ABC):
         """True when the map has no residual form (increments on the updated mesh)."""
         return False
 
+    def increment_solvers(self, problem: MotionProblem):
+        """What a mover in increments keeps across its moves at one design (``problem``'s
+        densities), passed back to :meth:`move` as ``solver``
+        (:class:`movers.increment_solvers.IncrementSolvers`); None for a mover that keeps nothing."""
+        return None
+
     @property
     def inversion_hint(self) -> str:
         """What to try when a move inverts elements (for the command line's message): more

@@ -49,7 +49,11 @@ from movers.base import MoveReport, element_apply, quality_record
 from movers.problem import MotionProblem
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
+from movers.increment_solvers import MoveSolver
 from tofsi.linalg.superlu import release_free_pages
+
+RAW_SOLVE_TOL = 1e-13
+"""A store's triangular solves go unrefined where a factorization's first one left a relative residual below this."""
 
 ElementMatrices = Callable[[np.ndarray], np.ndarray]
 """Current corners ``(Em, 4, 2)`` -> unscaled element matrices ``(Em, 8, 8)``; complex-safe."""
@@ -63,37 +67,45 @@ def system(bc, Ke: np.ndarray, dofs: np.ndarray, blend):
 @dataclass
 class MoveRecord:
     """What a move in increments keeps for its derivatives: each increment's unscaled element
-    matrices and, by increment, the exact factorization of its system where the move made one
-    (a recycling solver factorizes every few increments)."""
+    matrices and constrained system and, by increment, the exact factorization of its system
+    where the move made one."""
 
     matrices: list = field(default_factory=list)
     factors: dict = field(default_factory=dict)
+    systems: list = field(default_factory=list)      # each increment's constrained matrix (CSR)
 
 
 def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.ndarray,
               step: np.ndarray, solver, report: MoveReport, guess=None, blend=None,
-              record: MoveRecord | None = None) -> np.ndarray:
-    """The change ``dx`` (2n,) of one increment from displacement ``x`` (2n,) towards
-    ``x + step``; ``guess`` starts the iterative solve; ``record`` receives the increment's
-    element matrices and factorization."""
+              record: MoveRecord | None = None, index: int = 0) -> np.ndarray:
+    """The change ``dx`` (2n,) of one increment (number ``index``) from displacement ``x`` (2n,)
+    towards ``x + step``; ``guess`` starts the iterative solve; ``record`` receives the
+    increment's element matrices and factorization. ``solver``: a
+    :class:`~tofsi.linalg.RecyclingSolver` or a :class:`MoveSolver`."""
     bc, dofs = problem.bc, problem.dofs
     Xe = problem.points[problem.quads] + x.reshape(-1, 2)[problem.quads]
     K0 = element_matrices(Xe)
     Ke = K0 * problem.stiffening[:, None, None]
     step_p = np.zeros_like(step)
     step_p[bc.fixed] = step[bc.fixed]
-    rhs = -element_apply(Ke, step_p, dofs)
+    rhs = -element_apply(Ke, step_p, dofs) if np.any(step_p) else np.zeros_like(step)   # (blended: none)
     if blend is not None:
         rhs = blend.residual(rhs, step, 0.0)      # W (-K_fp d_p) + S_c d
     rhs[bc.fixed] = step[bc.fixed]
     report.linear_solves += 1
-    factorizations = solver.factorizations
-    dx = solver.solve(system(bc, Ke, dofs, blend), rhs, guess)
+    A = system(bc, Ke, dofs, blend)
+    if isinstance(solver, MoveSolver):
+        dx, made = solver.solve_increment(index, A, rhs, guess)
+    else:
+        factorizations = solver.factorizations
+        dx = solver.solve(A, rhs, guess)
+        made = solver.solver if solver.factorizations > factorizations and solver.solver.exact else None
     dx[bc.fixed] = step[bc.fixed]              # exact, whatever the solver's tolerance
     if record is not None:
-        if solver.factorizations > factorizations and solver.solver.exact:
-            record.factors[len(record.matrices)] = solver.solver        # made at this system
+        if made is not None:
+            record.factors[len(record.matrices)] = made        # made at this system
         record.matrices.append(K0)
+        record.systems.append(A)
     return dx
 
 
@@ -107,7 +119,8 @@ def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
     step = target / n
     dx = None
     for k in range(n):
-        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, record=record)
+        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, record=record,
+                       index=k)
         x = x + dx
         states.append(x)
         report.increments += 1
@@ -147,9 +160,11 @@ class IncrementDerivatives:
     made on first use with ``factorize``, the move's solver kind; it serves ``A_k`` and
     ``A_k^T``), the assembled ``P_f W f D_k``, the element forces ``K0_e dx_e (Em, 8)``, (blended)
     the assembled ``K_k dx_k``, and ``W K_k`` of the quads with a fixed dof (the prescribed
-    motion's share). ``record``: what the move kept (its element matrices and factorizations;
-    else they are made again). Memory: per increment a factorization of the mesh system and
-    one sparse matrix of its pattern. The missing factorizations are made together on first use
+    motion's share). ``record``: what the move kept (its element matrices, systems and
+    factorizations; else they are made again); ``keep``: takes the factorizations once made
+    (:meth:`movers.increment_solvers.IncrementSolvers.keep`: they precondition the later moves
+    at the design). Memory: per increment a factorization of the mesh system and one sparse
+    matrix of its pattern. The missing factorizations are made together on first use
     (every sweep needs them all), after the heap's free pages went back to the system
     (:func:`~tofsi.linalg.superlu.release_free_pages`: SuperLU's arrays, sized from a fill
     estimate 5-14 times what they use, would else make memory earlier arrays wrote resident
@@ -157,13 +172,14 @@ class IncrementDerivatives:
     """
 
     def __init__(self, problem: MotionProblem, states: list[np.ndarray], kernel: IncrementKernel,
-                 blend=None, factorize=None, record: MoveRecord | None = None):
+                 blend=None, factorize=None, record: MoveRecord | None = None, keep=None):
         bc, dofs, f = problem.bc, problem.dofs, problem.stiffening
         weight = np.ones(2 * problem.n_nodes) if blend is None else blend.weight
         scale = f[:, None, None] * weight[dofs][:, :, None]          # rows of f_e W
         self.edge = np.flatnonzero(bc.is_fixed[dofs].any(axis=1))   # quads with a fixed dof
         self.dofs_edge = dofs[self.edge]
-        self.factorize = factorize
+        self.factorize, self.keep = factorize, keep      # keep: takes the factors, for later moves
+        self.trusted: dict[tuple[int, bool], bool] = {}    # (increment, transposed) -> raw solves suffice
         self.solvers: list = [None if record is None else record.factors.get(k) for k in range(len(states) - 1)]
         self.increments, self.systems = [], []
         for k in range(len(states) - 1):
@@ -174,7 +190,9 @@ class IncrementDerivatives:
             WD = bc.row_matrix(scale * kernel.force_derivative(Xe, dx_e)) if k > 0 else None  # x_0 = 0
             forces = np.einsum("eab,eb->ea", K0, dx_e)
             Kdx = None if blend is None else assemble_vector(dofs, f[:, None] * forces, dx.size)
-            self.systems.append(None if self.solvers[k] is not None else system(bc, K0 * f[:, None, None], dofs, blend))
+            A = None if self.solvers[k] is not None else (
+                system(bc, K0 * f[:, None, None], dofs, blend) if record is None else record.systems[k])
+            self.systems.append(A)
             self.increments.append(_Stored(dx, (scale * K0)[self.edge] if self.edge.size else None,
                                            WD, forces, Kdx))
 
@@ -184,15 +202,39 @@ class IncrementDerivatives:
                 release_free_pages()
             self.solvers = [self.factorize(A) if s is None else s for s, A in zip(self.solvers, self.systems, strict=True)]
             self.systems = None                 # the factors are what is kept
+            if self.keep is not None:
+                self.keep(self.solvers)
         return self.solvers[k]
+
+    def _solve(self, k: int, b: np.ndarray, transpose: bool) -> np.ndarray:
+        """By the triangular solves alone where the factorization's first solve in this direction
+        left a residual below ``RAW_SOLVE_TOL |b|`` (the mesh systems' LU leaves ~1e-15: iterative
+        refinement never changes a digit, yet its residual check costs a third of a solve), else
+        by the factorization's own (refined) solve."""
+        solver = self._factors(k)
+        key = (k, transpose)
+        trusted = self.trusted.get(key)
+        if trusted is None:
+            trusted = False
+            if solver.exact and hasattr(solver, "A"):
+                x = solver.preconditioner(transpose)(b)
+                A = solver.A.T if transpose else solver.A
+                residual = np.linalg.norm(b - A @ x)
+                trusted = bool(np.all(np.isfinite(x))) and residual <= RAW_SOLVE_TOL * np.linalg.norm(b)
+            self.trusted[key] = trusted
+            if trusted:
+                return x
+        if trusted:
+            return solver.preconditioner(transpose)(b)
+        return solver.solve_transpose(b) if transpose else solver.solve(b)
 
     def solve(self, k: int, b: np.ndarray) -> np.ndarray:
         """``A_k^-1 b`` with increment ``k``'s own factorization (made on first use)."""
-        return self._factors(k).solve(b)
+        return self._solve(k, b, False)
 
     def solve_transpose(self, k: int, b: np.ndarray) -> np.ndarray:
         """``A_k^-T b``."""
-        return self._factors(k).solve_transpose(b)
+        return self._solve(k, b, True)
 
     def edge_apply(self, k: int, v: np.ndarray, size: int, transpose: bool = False) -> np.ndarray:
         """``P_f W K_k v`` (or ``K_k^T W v``) from the quads with a fixed dof only: exact where ``v``
@@ -218,7 +260,8 @@ def derivatives_of(problem: MotionProblem, result, kernel: IncrementKernel) -> I
     ``result.derivatives``."""
     if result.derivatives is None:
         result.derivatives = IncrementDerivatives(problem, result.trajectory, kernel, result.blend,
-                                                  result.solver.factorize, result.record)
+                                                  result.solver.factorize, result.record,
+                                                  getattr(result.solver, "keep", None))
         result.record = None                    # in the store now (its matrices are not kept twice)
     return result.derivatives
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
+from movers.increment_solvers import increment_solver, solvers_for
 from movers.incremental import IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, TriangleSplit, quad_force_derivative, quad_stiffness
 from tofsi.mesh import quality
@@ -50,6 +51,7 @@ class SpringMover(Mover):
 
     name = "spring"
     Params = SpringParams
+    warm_starts = True          # ``solver``: the factorizations of earlier moves at the design
 
     def element_matrices(self, codes: np.ndarray) -> IncrementKernel:
         """Unscaled quad matrices for the diagonal codes (complex-safe) and their forces' shape
@@ -97,14 +99,23 @@ class SpringMover(Mover):
             skew.append(quality.skewness(problem.points + dx.reshape(-1, 2), problem.quads))
         return np.where(skew[1] > skew[0], 1, 0)
 
-    def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None) -> MoveResult:
+    def increment_solvers(self, problem: MotionProblem):
+        """The increments' factorizations kept across the moves at one design (sparse LU)."""
+        return solvers_for(problem, self.params) if self.path_dependent else None
+
+    def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None, initial=None,
+             solver=None) -> MoveResult:
+        """The motion in increments; ``solver``: :meth:`increment_solvers` of ``problem`` (earlier
+        moves' factorizations, preconditioning this one's solves; any other is not used, nor is
+        ``initial``)."""
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
-        solver = self._solver(problem)
+        recycling = self._solver(problem)
+        solver = increment_solver(recycling, solver)
         blend = self.blend(problem)
         choice = self.params.diagonals
         if choice == "selective":
-            codes = self.choose_diagonals(problem, target, solver, report, blend)
+            codes = self.choose_diagonals(problem, target, recycling, report, blend)
         else:
             codes = np.full(len(problem.quads), DIAGONALS.index(choice))
         record = MoveRecord()

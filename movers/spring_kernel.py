@@ -50,6 +50,30 @@ DIAGONALS = ("1-3", "2-4", "both")
 TRIANGLES = {"1-3": ((0, 1, 2), (0, 2, 3)), "2-4": ((0, 1, 3), (1, 2, 3))}
 
 
+EDGES = ((0, 1), (1, 2), (2, 0))          # edge e runs from vertex e to vertex e + 1 (cyclically)
+FIRST, SECOND = [0, 1, 2], [1, 2, 0]      # their first and second ends
+
+_ENDS = np.zeros((3, 6, 2))                # B_e: an edge's 2-vector g -> (-g on its first end, +g on its second)
+for _e, (_p, _q) in enumerate(EDGES):
+    _ENDS[_e, 2 * _p:2 * _p + 2] = -np.eye(2)
+    _ENDS[_e, 2 * _q:2 * _q + 2] = np.eye(2)
+_SIGN = np.array([[-1.0, 0.0, 1.0], [1.0, -1.0, 0.0], [0.0, 1.0, -1.0]])   # [r, e]: -1 / +1 at e's first / second end
+
+
+def _rows(S: np.ndarray) -> np.ndarray:
+    """``(6, 18)``: per-edge 2-vectors ``g`` ``(T, 3, 2)`` flattened ``-> (T, 3, 6)`` flattened,
+    row ``r`` ``sum_e S[r, e] B_e g_e`` (one matrix product for all triangles)."""
+    return np.einsum("re,eai->eira", S, _ENDS).reshape(6, 18)
+
+
+_EDGE_ROWS, _SIGNED_ROWS, _END_ROWS = _rows(np.eye(3)), _rows(_SIGN), _rows(np.abs(_SIGN))
+_PLACE = np.einsum("eai,ebj->eijab", _ENDS, _ENDS).reshape(12, 36)     # sum_e B_e G_e B_e^T, (T, 12) -> (T, 36)
+
+
+def _on_rows(g: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    return (g.reshape(len(g), 6) @ rows).reshape(len(g), 3, 6)
+
+
 def triangle_stiffness(P: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
     """Spring stiffness ``(T, 6, 6)`` of triangles with vertices ``P`` ``(T, 3, 2)`` (complex-safe).
 
@@ -58,19 +82,17 @@ def triangle_stiffness(P: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
     ``sqrt(TSC C_r) R_r``: one batched product instead of many small strided sums.
     """
     T = P.shape[0]
-    M = np.zeros((T, 6, 6), dtype=P.dtype)
-    d = P[:, [1, 2, 0]] - P[:, [0, 1, 2]]                       # edge e = (e, e + 1)
+    d = P[:, SECOND] - P[:, FIRST]
     L2 = np.einsum("tei,tei->te", d, d)
-    lineal = np.sqrt(0.5 / L2**1.5)[..., None] * d
-    for e, (p, q) in enumerate(((0, 1), (1, 2), (2, 0))):
-        M[:, e, 2 * p:2 * p + 2] = -lineal[:, e]
-        M[:, e, 2 * q:2 * q + 2] = lineal[:, e]
-    if torsion_scale != 0.0:
+    lineal = _on_rows(np.sqrt(0.5 / L2**1.5)[..., None] * d, _EDGE_ROWS)
+    if torsion_scale == 0.0:
+        M = lineal
+    else:
         x, y = P[..., 0], P[..., 1]
         area2 = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
-        C = np.stack([L2[:, 0] * L2[:, 2], L2[:, 1] * L2[:, 0], L2[:, 2] * L2[:, 1]], axis=1) / (area2**2)[:, None]
-        M[:, 3:] = np.sqrt(torsion_scale * C)[..., None] * angle_gradients(d, L2)
-    return np.matmul(M.transpose(0, 2, 1), M)
+        C = L2[:, FIRST] * L2[:, [2, 0, 1]] / (area2**2)[:, None]
+        M = np.concatenate([lineal, np.sqrt(torsion_scale * C)[..., None] * angle_gradients(d, L2)], axis=1)
+    return np.matmul(M.transpose(0, 2, 1), M).reshape(T, 6, 6)
 
 
 def angle_gradients(d: np.ndarray, L2: np.ndarray) -> np.ndarray:
@@ -79,14 +101,7 @@ def angle_gradients(d: np.ndarray, L2: np.ndarray) -> np.ndarray:
     ``d_ij`` of the angle at its first end (``-phi(d)``) and ``d_ik`` reversed of the angle at its
     second (``+phi(-d)``, whose gradient in ``d`` is ``grad phi(d) = (-d_y, d_x) / L^2``)."""
     grad = np.stack([-d[..., 1], d[..., 0]], axis=-1) / L2[..., None]
-    R = np.zeros(d.shape[:1] + (3, 6), dtype=d.dtype)
-    for e, (p, q) in enumerate(((0, 1), (1, 2), (2, 0))):
-        ip, iq = slice(2 * p, 2 * p + 2), slice(2 * q, 2 * q + 2)
-        R[:, p, iq] -= grad[:, e]
-        R[:, p, ip] += grad[:, e]
-        R[:, q, iq] += grad[:, e]
-        R[:, q, ip] -= grad[:, e]
-    return R
+    return _on_rows(grad, _SIGNED_ROWS)
 
 
 def triangle_force_derivative(P: np.ndarray, v: np.ndarray, torsion_scale: float = 1.0) -> np.ndarray:
@@ -94,54 +109,38 @@ def triangle_force_derivative(P: np.ndarray, v: np.ndarray, torsion_scale: float
     ``(T, 6)`` held fixed (real ``P``; module docstring). Each edge ``e = (p, q)``, ``q = p + 1``
     cyclically, is a side of the angles at ``p`` (as ``d_ij``, sign -) and at ``q`` (as ``d_ik``,
     sign +), and ``hess phi`` is even, so ``sum_r c_r H_r`` is a sum over the three edges of
-    ``(c_q - c_p)`` times ``hess phi(d_e)`` placed as ``[[h, -h], [-h, h]]`` on ``(p, q)``."""
+    ``(c_q - c_p)`` times ``hess phi(d_e)`` placed as ``[[h, -h], [-h, h]]`` on ``(p, q)``: with the
+    lineal ``dg/dd`` one 2 x 2 block per edge, placed on its ends by one matrix product."""
     T = P.shape[0]
-    D = np.zeros((T, 6, 6))
-    edges = ((0, 1), (1, 2), (2, 0))
-    slots = [(slice(2 * p, 2 * p + 2), slice(2 * q, 2 * q + 2)) for p, q in edges]
-    d = np.stack([P[:, q] - P[:, p] for p, q in edges], axis=1)                 # (T, 3, 2)
+    d = P[:, SECOND] - P[:, FIRST]                                   # (T, 3, 2)
+    vp = v.reshape(T, 3, 2)
+    delta = vp[:, SECOND] - vp[:, FIRST]
     L2 = np.einsum("tei,tei->te", d, d)
-    for e, (ip, iq) in enumerate(slots):
-        delta = v[:, iq] - v[:, ip]
-        dd = np.einsum("ti,ti->t", d[:, e], delta)
-        G = (np.einsum("ti,tj->tij", d[:, e], delta) + dd[:, None, None] * np.eye(2)
-             - 3 * (dd / L2[:, e])[:, None, None] * np.einsum("ti,tj->tij", d[:, e], d[:, e]))
-        G /= (2 * L2[:, e] ** 1.5)[:, None, None]
-        D[:, iq, iq] += G
-        D[:, ip, ip] += G
-        D[:, iq, ip] -= G
-        D[:, ip, iq] -= G
+    dd = np.einsum("tei,tei->te", d, delta)
+    G = d[..., :, None] * delta[..., None, :] - (3 * dd / L2)[..., None, None] * (d[..., :, None] * d[..., None, :])
+    G[..., 0, 0] += dd
+    G[..., 1, 1] += dd
+    G /= (2 * L2**1.5)[..., None, None]                              # lineal dg/dd per edge
     if torsion_scale == 0.0:
-        return D
+        return (G.reshape(T, 12) @ _PLACE).reshape(T, 6, 6)
     dx, dy = d[..., 0], d[..., 1]
-    off = dy**2 - dx**2
-    h = np.stack([np.stack([2 * dx * dy, off], -1), np.stack([off, -2 * dx * dy], -1)], -2) / (L2**2)[..., None, None]
+    L4 = L2**2
+    h = np.empty((T, 3, 2, 2))                                       # hess phi(d_e)
+    h[..., 0, 0] = 2 * dx * dy / L4
+    h[..., 1, 1] = -h[..., 0, 0]
+    h[..., 0, 1] = h[..., 1, 0] = (dy**2 - dx**2) / L4
     x, y = P[..., 0], P[..., 1]
     area2 = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
     grad_area2 = np.stack([y[:, 1] - y[:, 2], x[:, 2] - x[:, 1], y[:, 2] - y[:, 0], x[:, 0] - x[:, 2],
                            y[:, 0] - y[:, 1], x[:, 1] - x[:, 0]], axis=1) / area2[:, None]
-    R = angle_gradients(d, L2)               # row r: grad theta_r
-    Hv = np.zeros((T, 3, 6))                 # row r: H_r v
-    dlogC = np.zeros((T, 3, 6))              # row r: grad C_r / C_r
-    for e, ((p, q), (ip, iq)) in enumerate(zip(edges, slots, strict=True)):
-        hu = np.einsum("tij,tj->ti", h[:, e], v[:, iq] - v[:, ip])             # [[h, -h], [-h, h]] v = (-hu, hu)
-        for r, sign in ((p, -1.0), (q, 1.0)):        # e is d_ij of the angle at p, -d_ik of the angle at q
-            Hv[:, r, iq] += sign * hu
-            Hv[:, r, ip] -= sign * hu
-            dlogC[:, r, iq] += 2 * d[:, e] / L2[:, e, None]                          # grad L_e^2 / L_e^2
-            dlogC[:, r, ip] -= 2 * d[:, e] / L2[:, e, None]
-    C = np.stack([L2[:, 0] * L2[:, 2], L2[:, 1] * L2[:, 0], L2[:, 2] * L2[:, 1]], axis=1) / (area2**2)[:, None]
-    dlogC -= 2 * grad_area2[:, None, :]
-    w = np.einsum("tri,ti->tr", R, v)
-    c = C * w
-    for e, (ip, iq) in enumerate(slots):
-        Ge = (c[:, edges[e][1]] - c[:, edges[e][0]])[:, None, None] * h[:, e]
-        D[:, iq, iq] += torsion_scale * Ge
-        D[:, ip, ip] += torsion_scale * Ge
-        D[:, iq, ip] -= torsion_scale * Ge
-        D[:, ip, iq] -= torsion_scale * Ge
+    R = angle_gradients(d, L2)                                       # row r: grad theta_r
+    Hv = _on_rows(np.einsum("teij,tej->tei", h, delta), _SIGNED_ROWS)   # row r: H_r v
+    dlogC = _on_rows(2 * d / L2[..., None], _END_ROWS) - 2 * grad_area2[:, None, :]   # row r: grad C_r / C_r
+    C = L2[:, FIRST] * L2[:, [2, 0, 1]] / (area2**2)[:, None]
+    c = C * np.einsum("tri,ti->tr", R, v)                            # C_r w_r
+    G += (torsion_scale * (c[:, SECOND] - c[:, FIRST]))[..., None, None] * h
     right = c[..., None] * dlogC + C[..., None] * Hv
-    return D + torsion_scale * np.einsum("tri,trj->tij", R, right)
+    return (G.reshape(T, 12) @ _PLACE).reshape(T, 6, 6) + torsion_scale * np.matmul(R.transpose(0, 2, 1), right)
 
 
 class TriangleSplit:

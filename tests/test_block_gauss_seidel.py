@@ -150,3 +150,20 @@ def test_a_block_known_by_its_products_solves_like_the_matrix_it_stands_for():
     weak = BlockGaussSeidel(M, max_iter=1)
     with pytest.raises(NumericalError, match="did not converge"):
         weak.solve(b)
+
+
+def test_the_coupled_fields_orderings_factorize_with_less_fill_than_the_default_leaf():
+    """The block system cuts its nested dissection down to blocks of 4 grid positions: each field's
+    LU at a two-way state has fewer entries than with the default leaf of 32 (flow, structure and
+    mesh: 8-15 % fewer on this mesh; the triangular solves of every GMRES sweep follow)."""
+    from tofsi.linalg import DirectSolver
+    from tofsi.linalg.ordering import nested_dissection
+    model, rho = soft_model("monolithic")
+    system = model.system_for(model.stage)
+    state = model.solve(rho)
+    for name in system.cycles[0]:
+        A = state.linearizations[name].matrix()
+        coords, last = system.by_name[name].ordering_grid()
+        ours = DirectSolver(A, perm=system.ordering((name,))).factorization.factor_nnz
+        default = DirectSolver(A, perm=nested_dissection(coords, last=last)).factorization.factor_nnz
+        assert ours < 0.95 * default, (name, ours, default)

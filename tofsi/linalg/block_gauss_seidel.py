@@ -56,7 +56,8 @@ class BlockGaussSeidel:
     exact = False
     symmetric = False
     follows_matrix = True      # preconditioner(transpose, matrix): the sweep takes the matrix's couplings
-    setup_iterations = 10      # factorizing the diagonal blocks costs about 10 GMRES iterations
+    setup_iterations = 15      # factorizing the diagonal blocks costs about 15 GMRES iterations (measured on
+                               # the large scene: 13 sweeps at 80 x 40, 16 at 160 x 80)
 
     def __init__(self, A, sizes=None, orderings=None, tol: float = 1e-10, max_iter: int = 200,
                  direct=None):

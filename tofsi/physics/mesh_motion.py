@@ -94,6 +94,7 @@ class MeshMotion:
                                             linear_algebra=self.linear_algebra)
         self.kept_problem = Kept()                # the problem of the last densities
         self.kept_blend = Kept()                  # and its blend, built on first use
+        self.kept_solvers = Kept()                # and a mover in increments' factorizations
 
     @property
     def path_dependent(self) -> bool:
@@ -175,6 +176,8 @@ class MeshMotion:
         start: ``initial``, a mesh displacement for a nearby motion to start from, and
         ``solver``, an earlier move's solver to recycle (neither changes the result)."""
         problem = self.problem(rho)
+        if solver is None:                        # the last densities' moves' factorizations, if kept
+            solver = self.kept_solvers.get(self.density_key(rho), lambda: self.mover.increment_solvers(problem))
         start = {"initial": initial, "solver": solver} if self.mover.warm_starts else {}
         result = self.mover.move(problem, self.target(u), progress, **start)
         result.problem = problem

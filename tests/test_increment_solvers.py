@@ -1,0 +1,40 @@
+"""A mover in increments keeps its increments' factorizations across the moves at one design
+(:class:`movers.increment_solvers.IncrementSolvers`).
+
+Truths: a move preconditioned by the kept factors is the move solved to round-off (linear_tol 1e-15), to
+the kept factors' tolerance; the store of a move's derivatives hands its factors over, after which a
+nearby move (a Newton iterate's) factorizes nothing; and its tangent is the fresh move's.
+"""
+
+import numpy as np
+
+import movers
+from test_mover_derivatives import setup_problem
+
+
+def test_kept_factors_give_the_fresh_move_and_spare_the_later_moves_factorizations():
+    mesh, problem, u = setup_problem(blended=True)
+    mover = movers.create("spring", increments=4, diagonals="both")
+    kept = mover.increment_solvers(problem)
+    assert kept is not None and kept.rtol == 1e-13            # a thousandth of linear_tol
+    first = mover.move(problem, u, solver=kept)
+    assert first.report.factorizations >= 1 and first.report.converged
+    mover.jvp(problem, first, np.ones_like(u))                # builds the store of its derivatives
+    assert len(kept.factors) == 4                              # every increment's factors, kept
+    nearby = u * (1 + 1e-4)                                    # a Newton step further
+    again = mover.move(problem, nearby, solver=kept)
+    fresh = movers.create("spring", increments=4, diagonals="both", linear_tol=1e-15).move(problem, nearby)
+    assert again.report.factorizations == 0 and fresh.report.factorizations >= 1   # teeth
+    scale = np.abs(fresh.displacement).max()
+    assert np.abs(again.displacement - fresh.displacement).max() <= 1e-12 * scale
+    du = np.random.default_rng(3).normal(size=u.shape)
+    du[problem.fixed_nodes] = 0.0
+    t_again, t_fresh = mover.jvp(problem, again, du), mover.jvp(problem, fresh, du)
+    assert np.abs(t_again - t_fresh).max() <= 1e-9 * np.abs(t_fresh).max()
+
+
+def test_a_mover_without_kept_factors_and_an_iterative_tangent_keep_none():
+    _, problem, _ = setup_problem(blended=False)
+    assert movers.create("yeoh").increment_solvers(problem) is None
+    assert movers.create("spring", increments=1, diagonals="both").increment_solvers(problem) is None
+    assert movers.create("spring", increments=3, tangent_solver="amg").increment_solvers(problem) is None
