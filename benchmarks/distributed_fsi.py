@@ -10,7 +10,7 @@ the channel (half as many across), its last continuation stage (two-way, beta 16
 mover with its stiffened layers), the wall design of ``tests/mpi_fsi_problem.py`` without its
 noise (density 0.9 in ``|x - 1| < 0.15``, ``y < 0.6``, 0.1 elsewhere), solved from rest and
 differentiated once (:class:`tofsi.parallel.fsi_problem.DistributedFsiProblem`: the flow and
-the structure by slabs, the mover replicated). Each rank prints one line: the setup and
+the structure and the Yeoh mover by slabs). Each rank prints one line: the setup and
 evaluation wall times, its process CPU seconds and its peak resident memory
 (``ru_maxrss``) in GB, and the compliance.
 """

@@ -14,7 +14,14 @@
 * :class:`~tofsi.parallel.slab_flow.SlabCoupling` -- the fluid load and the coupling partials on a
   rank's slab with the serial kernels (:class:`~tofsi.parallel.slab_flow.SlabFlow`: a Flow restricted
   to the slab's elements), summed over ranks;
-* :class:`~tofsi.parallel.slab_structure.SlabStructure` -- the small-strain stiffness by slabs, MUMPS;
+* :class:`~tofsi.parallel.slab_matrix.SlabMatrix` -- a matrix on the mesh's node dofs by slabs, MUMPS
+  across the ranks; :class:`~tofsi.parallel.slab_structure.SlabStructure` -- the small-strain
+  stiffness on it;
+* :class:`~tofsi.parallel.slab_mover.SlabMover` -- a residual-form mesh mover (Yeoh, linear or the
+  spring in one increment) by slabs: its element kernels on a rank's quads, its tangent on a
+  ``SlabMatrix``, Newton with load steps and cutbacks (:mod:`tofsi.parallel.mover_newton`), its
+  transposed solve and partials;
 * :class:`~tofsi.parallel.fsi_problem.DistributedFsiProblem` -- compliance FSI (small strain, one-way
-  or two-way with a residual mover), the flow and the structure by slabs, the mover replicated.
+  or two-way with any mover), the flow, the structure and a residual-form mover by slabs (a move in
+  increments replicated).
 """

@@ -18,9 +18,16 @@ What is distributed and what is replicated:
   (:class:`~tofsi.parallel.slab_flow.SlabCoupling`), summed over ranks;
 * the structure's ``K_s(rho)``: assembled by the same slabs, factorized across the ranks by
   MUMPS once per design (:class:`~tofsi.parallel.slab_structure.SlabStructure`);
+* the mesh motion of a mover with a residual form (Yeoh, linear elasticity or the spring in
+  one increment): its element residuals and tangents on each rank's elements with the serial
+  kernel, its tangent assembled by the same slabs and factorized across the ranks by MUMPS,
+  Newton with the Yeoh mover's load steps, cutbacks and line search, its transposed solve and
+  transposed partials likewise (:class:`~tofsi.parallel.slab_mover.SlabMover`);
 * replicated on every rank: the vectors ``u``, ``x``, ``f`` (``O(n)``, the same bits on
-  every rank) and the mesh motion (the serial mover block: Newton, its transposed solve
-  and partials).
+  every rank), the mover's design data (blend indicator, density-grown stiffening factors and
+  their chain rule to ``rho``, ``O(E)``), and a path-dependent move (the spring analogy or
+  linear elasticity in several increments: the serial mover block, its tangent and reverse
+  sweeps).
 
 The two-way cycle ``x -> w -> f -> u -> x~ = D^-1(u)`` is solved partitioned: the fixed
 point ``x = x~(x)`` by IQN-ILS (Degroote et al. 2009: the next ``x`` from the least-squares
@@ -48,6 +55,7 @@ from tofsi.optimization.problem import mesh_quality
 from tofsi.optimization.protocol import Evaluation
 from tofsi.parallel.flow_problem import DistributedFlowProblem
 from tofsi.parallel.slab_flow import SlabCoupling
+from tofsi.parallel.slab_mover import SlabMover
 from tofsi.parallel.slab_structure import SlabStructure
 
 log = logging.getLogger(__name__)
@@ -87,6 +95,8 @@ class DistributedFsiProblem(DistributedFlowProblem):
         model = self.model
         self.coupling = SlabCoupling(self.engine, model.structure)
         self.structure = SlabStructure(model.structure, self.engine)
+        motion = getattr(model, "motion", None)              # a residual-form mover by slabs
+        self.mover = None if motion is None or motion.path_dependent else SlabMover(motion, self.coupling)
         self.x: np.ndarray | None = None               # the last converged mesh motion (the next start)
         self.tol = min(self.scene.coupled.tol, 1e-10)
         self.max_iter = self.scene.coupled.max_iter
@@ -128,19 +138,24 @@ class DistributedFsiProblem(DistributedFlowProblem):
             X = x.reshape(-1, 2)
             w, report = self._flow(X, rho, params, it == 0)
             f, u = self._structure(w, X, rho, params)
-            x_new, lin_x, _ = mover.solve({"u": u, "x": x}, rho, params, guess=x.reshape(-1, 2), previous=lin_x)
+            if self.mover is None:                                     # a move in increments: replicated
+                x_new, lin_x, moved = mover.solve({"u": u, "x": x}, rho, params, guess=x.reshape(-1, 2),
+                                                  previous=lin_x)
+            else:
+                x_new, lin_x, moved = self.mover.move(u, rho, guess=x)
             r = x_new - x
             change = float(np.linalg.norm(r)) / max(float(np.linalg.norm(x_new)), 1e-300)
             history.append(change)
-            log.info("distributed two-way sweep %d: |x~ - x|/|x~| = %.3e (Newton %d)", it, change,
-                     report["newton_iterations"])
+            log.info("distributed two-way sweep %d: |x~ - x|/|x~| = %.3e (flow Newton %d, mover Newton %d)", it,
+                     change, report["newton_iterations"], moved["newton_iterations"])
             if not np.isfinite(change):
                 raise NumericalError("distributed two-way solve: non-finite mesh motion", {"history": history})
             if change <= self.tol:
                 self.model.unfolded(State(rho, {"x": x}))            # a folded mesh is a failure, as serially
                 self.x = x
                 return {"w": w, "u": u, "x": x, "f": f, "lin_x": lin_x,
-                        "reports": {"w": report, "coupled": {"sweeps": it + 1, "history": history}}}
+                        "reports": {"w": report, "mover": moved,
+                                    "coupled": {"sweeps": it + 1, "history": history}}}
             if previous is not None:                                    # IQN-ILS
                 dR.append(r - previous[0])
                 dX.append(x_new - previous[1])
@@ -189,7 +204,7 @@ class DistributedFsiProblem(DistributedFlowProblem):
                             - cp.load_shape_transpose(w, X, rho, params, lam_u))
             return out
 
-        parts = sweep(None if lin_x is None else np.zeros(lin_x.block.size))
+        parts = sweep(None if lin_x is None else np.zeros(s["x"].size))
         if lin_x is not None:
             c0 = parts["y"]
             if np.any(c0):

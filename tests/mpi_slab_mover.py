@@ -1,0 +1,43 @@
+"""Run by ``mpiexec -n N``: the mesh mover by slabs (tofsi.parallel.slab_mover) at the last
+continuation stage of an FSI scene, at the wall design of ``tests/mpi_fsi_problem.py`` (no
+noise) and a prescribed structural displacement bending the wall downstream; every rank
+alike. Rank 0 saves the motion ``x``, its report's counts, and for a seeded random ``rhs``
+the transposed solve ``lam = D_x^-T rhs`` and the transposed partials ``lam^T D_u``,
+``lam^T D_rho``. When the move fails, each rank writes its message to ``OUT.rank<r>.txt``.
+
+    mpiexec -n 2 python tests/mpi_slab_mover.py SCENE OUT.npz [KEY=VALUE ...]
+"""
+
+import sys
+
+import numpy as np
+from petsc4py import PETSc
+
+import tofsi
+from tofsi.core.errors import NumericalError
+from tofsi.coupling.coupled import continuation
+from tofsi.parallel.fsi_problem import DistributedFsiProblem
+
+scene_path, out, overrides = sys.argv[1], sys.argv[2], sys.argv[3:]
+scene = tofsi.load_scene(scene_path, overrides)
+problem = DistributedFsiProblem(scene)
+problem.set_stage(continuation(scene, scene.design.n_stages - 1))
+mesh = problem.model.mesh
+centroids = mesh.centroids[problem.map.design]
+wall = (np.abs(centroids[:, 0] - 1.0) < 0.15) & (centroids[:, 1] < 0.6)
+rho = problem.serial.densities(np.where(wall, 0.9, 0.1))
+X, Y = mesh.points[:, 0], mesh.points[:, 1]
+u = np.column_stack([0.08 * (Y / 0.6) ** 2 * np.exp(-((X - 1.0) / 0.3) ** 2), 0.0 * X]).ravel()
+rank = PETSc.COMM_WORLD.getRank()
+try:
+    x, lin, report = problem.mover.move(u, rho)
+except NumericalError as err:
+    with open(f"{out}.rank{rank}.txt", "w") as f:
+        f.write(str(err))
+    sys.exit(0)
+rhs = np.random.default_rng(3).standard_normal(x.size)
+lam = lin.solve_transpose(rhs)
+bars, rho_bar = lin.transpose_partials(lam)
+if rank == 0:
+    np.savez(out, rho=rho, u=u, x=x, rhs=rhs, lam=lam, u_bar=bars["u"], rho_bar=rho_bar,
+             newton=report["newton_iterations"], increments=report["increments"])
