@@ -291,7 +291,7 @@ class Mover(ABC):
         return target, time.perf_counter()
 
     @staticmethod
-    def _fail(report: MoveReport, problem: MotionProblem, x: np.ndarray | None, message: str, t0: float,
+    def raise_failure(report: MoveReport, problem: MotionProblem, x: np.ndarray | None, message: str, t0: float,
               load: float = np.nan, broken: dict | None = None):
         """Raise the failure: ``message`` says what failed (and which element, where one did:
         ``broken``, kept in the diagnostic as ``broken_element``); ``x`` is the last accepted

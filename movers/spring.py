@@ -123,7 +123,7 @@ class SpringMover(Mover):
             x, states = run_increments(problem, target, self.params.increments,
                                        self.element_matrices(codes), solver, report, progress, blend, record)
         except NumericalError as err:
-            self._fail(report, problem, None, str(err), t0)
+            self.raise_failure(report, problem, None, str(err), t0)
         result = self._finish(report, problem, x, t0, solver, trajectory=states, blend=blend,
                               target=target, record=record)
         result.cell_data["diagonal"] = codes
