@@ -24,7 +24,8 @@ or the LU factors of the whole mesh:
   the one-increment spring solve their linear equations whatever the mesh, as serially; the
   coupled state is checked for folds afterwards.
 
-The Newton with load steps, cutbacks and line search is :mod:`tofsi.parallel.mover_newton`.
+The Newton with load steps, cutbacks and line search is the serial Yeoh mover's own,
+:class:`movers.newton.LoadStepNewton`, on these operators (:class:`SlabOperators`).
 The adjoint, at the converged ``x`` (:class:`SlabMotionLinearization`):
 
     D_x^T lam = rhs:   A_ff^T lam_f = rhs_f,   lam_p = rhs_p - (K^T W lam_f)_p,
@@ -38,19 +39,21 @@ as :meth:`movers.base.Mover.transposed_solve` and :meth:`~movers.base.Mover.resi
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from movers.base import element_apply
+from movers.base import MoveReport, element_apply
 from movers.blend import Blend
+from movers.failure import broken_element
+from movers.newton import LoadStepNewton, NewtonSettings
 from movers.problem import MotionProblem
 from tofsi.core.errors import NumericalError
 from tofsi.core.kept import Kept
 from tofsi.fem.assembly import assemble_vector, element_dofs
 from tofsi.fem.complex_step import derivative
 from tofsi.mesh import quality
-from tofsi.parallel.mover_newton import SlabNewton
 from tofsi.parallel.slab_matrix import SlabMatrix
 
 CORNER_CHECKED = ("yeoh",)      # movers whose serial move refuses a trial with an inverted corner
@@ -167,8 +170,68 @@ class SlabMover:
         """``(x (2n,), linearization, report)``: the mesh moved with the structure's ``u`` at ``rho``."""
         d = self.design(rho)
         target = self.motion.target(u).reshape(-1)
-        x, report = SlabNewton(self, d, target).move(None if guess is None else np.asarray(guess).reshape(-1))
-        return x, SlabMotionLinearization(self, d, x, target, rho), report
+        t0, counts = time.perf_counter(), (self.matrix.factorizations, self.matrix.krylov_iterations)
+        report = MoveReport(mover=self.mover.name)
+        x = LoadStepNewton(SlabOperators(self, d, target), NewtonSettings.of(self.params), report,
+                           f"{self.mover.name} mover by slabs").move(guess)
+        report.converged, report.wall_time_s = True, time.perf_counter() - t0
+        report.factorizations = self.matrix.factorizations - counts[0]           # this move's own
+        report.krylov_iterations = self.matrix.krylov_iterations - counts[1]
+        return x, SlabMotionLinearization(self, d, x, target, rho), report.as_dict()
+
+
+class SlabOperators:
+    """The equations of :class:`SlabMover` at one design ``d`` towards the motion ``target`` (2n,),
+    as :class:`movers.newton.LoadStepNewton` reads them: a state is the slab's
+    :class:`MoverState` (None where an element is invalid on some rank), vectors are replicated.
+    A mover without Yeoh's Newton parameters (linear elasticity, the spring in one increment)
+    takes their defaults (:meth:`movers.newton.NewtonSettings.of`): its residual is linear and
+    its tangent constant, so the predictor and a Newton step or two solve it."""
+
+    def __init__(self, mover: SlabMover, d: SlabDesign, target: np.ndarray):
+        self.m, self.d, self.target, self.fixed = mover, d, target, mover.fixed
+
+    def evaluate(self, x: np.ndarray, tangent: bool = True) -> MoverState | None:
+        return self.m.evaluate(self.d, x, tangent)
+
+    def forces(self, state: MoverState) -> np.ndarray:
+        return state.R
+
+    def residual(self, state: MoverState, x: np.ndarray, load: float) -> np.ndarray:
+        return self.m.residual(self.d, state.R, x, load * self.target)
+
+    def jump(self, state: MoverState, boundary_step: np.ndarray) -> np.ndarray:
+        """Free-row response ``W K_fp d_p`` to moving the fixed dofs by ``d_p``."""
+        v = np.zeros_like(boundary_step)
+        v[self.fixed] = boundary_step[self.fixed]
+        r = self.d.weight * self.m.apply(self.d, state.Ke, v)
+        r[self.fixed] = 0.0
+        return r
+
+    def solve(self, state: MoverState, rhs: np.ndarray, rtol: float) -> np.ndarray:
+        """The tangent's solve to ``rtol``: GMRES preconditioned by an earlier step's factors,
+        refactorized when they went stale (:meth:`~tofsi.parallel.slab_matrix.SlabMatrix.solve`)."""
+        self.m.assemble(self.d, state.Ke)
+        return self.m.solve(rhs, rtol=rtol)
+
+    def nearer(self, x0: np.ndarray) -> bool:
+        carried = self.m.is_fixed | (self.d.diag > 0)
+        return bool(np.linalg.norm((self.target - x0)[carried]) < np.linalg.norm(self.target[carried]))
+
+    def broken(self, x: np.ndarray) -> dict | None:
+        """The most skewed element ``x`` inverts by its corners over all ranks' slabs (the same on
+        every rank), None when none is."""
+        found = [b for b in self.m.mpi.allgather(broken_element(self.d.slab, x)) if b is not None]
+        return min(found, key=lambda b: (b["skewness"], b["element"])) if found else None
+
+    def record(self, report: MoveReport, x: np.ndarray, load: float, planned: int) -> None:
+        report.increments += 1
+
+    def fail(self, report: MoveReport, x, message: str, load: float, broken) -> None:
+        report.message = message
+        raise NumericalError(f"{report.mover} mover (by slabs): {message}",
+                             {"report": report.as_dict(), "load": load,
+                              **({"broken_element": broken} if broken else {})})
 
 
 class SlabMotionLinearization:
