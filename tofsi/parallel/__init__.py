@@ -19,7 +19,8 @@
   stiffness on it;
 * :class:`~tofsi.parallel.slab_mover.SlabMover` -- a residual-form mesh mover (Yeoh, linear or the
   spring in one increment) by slabs: its element kernels on a rank's quads, its tangent on a
-  ``SlabMatrix``, Newton with load steps and cutbacks (:mod:`tofsi.parallel.mover_newton`), its
+  ``SlabMatrix``, the serial Yeoh mover's Newton with load steps and cutbacks
+  (:class:`movers.newton.LoadStepNewton`), its
   transposed solve and partials;
 * :class:`~tofsi.parallel.fsi_problem.DistributedFsiProblem` -- compliance FSI (small strain, one-way
   or two-way with any mover), the flow, the structure and a residual-form mover by slabs (a move in
