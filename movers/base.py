@@ -32,6 +32,7 @@ from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import derivative
 from tofsi.linalg import LinearAlgebra, RecyclingSolver
+from movers.increment_solvers import solvers_for
 from movers.problem import MotionProblem
 
 log = logging.getLogger(__name__)
@@ -143,10 +144,11 @@ class Mover(ABC):
         return False
 
     def increment_solvers(self, problem: MotionProblem):
-        """What a mover in increments keeps across its moves at one design (``problem``'s
-        densities), passed back to :meth:`move` as ``solver``
-        (:class:`movers.increment_solvers.IncrementSolvers`); None for a mover that keeps nothing."""
-        return None
+        """What a mover in increments (:attr:`path_dependent`) keeps across its moves at one
+        design (``problem``'s densities), passed back to :meth:`move` as ``solver``: its
+        increments' sparse LU factors (:class:`movers.increment_solvers.IncrementSolvers`); None
+        for a mover with a residual form, or with an iterative tangent solver."""
+        return solvers_for(problem, self.params) if self.path_dependent else None
 
     @property
     def inversion_hint(self) -> str:

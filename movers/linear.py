@@ -16,7 +16,7 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
-from movers.increment_solvers import increment_solver, solvers_for
+from movers.increment_solvers import increment_solver
 from movers.incremental import IncrementKernel, MoveRecord, increments_jvp, increments_vjp, run_increments
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError
@@ -59,10 +59,6 @@ class LinearElasticMover(Mover):
 
     def reference_matrices(self, problem: MotionProblem) -> np.ndarray:
         return self.element_matrices()(problem.points[problem.quads])
-
-    def increment_solvers(self, problem: MotionProblem):
-        """The increments' factorizations kept across the moves at one design (sparse LU)."""
-        return solvers_for(problem, self.params) if self.path_dependent else None
 
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None, initial=None,
              solver=None) -> MoveResult:

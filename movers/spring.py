@@ -25,7 +25,7 @@ import numpy as np
 
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
-from movers.increment_solvers import increment_solver, solvers_for
+from movers.increment_solvers import increment_solver
 from movers.incremental import IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, TriangleSplit, quad_force_derivative, quad_stiffness
 from tofsi.mesh import quality
@@ -98,10 +98,6 @@ class SpringMover(Mover):
             dx = increment(problem, self.element_matrices(codes), x0, step, solver, report, blend=blend)
             skew.append(quality.skewness(problem.points + dx.reshape(-1, 2), problem.quads))
         return np.where(skew[1] > skew[0], 1, 0)
-
-    def increment_solvers(self, problem: MotionProblem):
-        """The increments' factorizations kept across the moves at one design (sparse LU)."""
-        return solvers_for(problem, self.params) if self.path_dependent else None
 
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None, initial=None,
              solver=None) -> MoveResult:
