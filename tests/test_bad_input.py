@@ -410,6 +410,35 @@ def test_one_process_cannot_lock_a_folder_twice(tmp_path):
     assert not (tmp_path / "o").exists()                  # nothing written: the folder goes again
 
 
+def test_a_run_refused_while_the_owner_writes_its_record_names_the_owner(tmp_path):
+    """The owner takes the record lock, then writes its name: a run refused in between said
+    "another run (starting)" (seen once when two runs started at once under load). It now reads
+    the record again until it is written. The owner here (another process) takes the lock on a
+    file it then moves into place, and names itself 0.5 s later."""
+    import textwrap
+    from tofsi.core.errors import InputError
+    from tofsi.runs.folder_lock import LOCK_NAME, FolderLock
+    folder = tmp_path / "o"
+    folder.mkdir()
+    owner = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+        import fcntl, json, os, time
+        fd = os.open({str(folder / 'tmp')!r}, os.O_CREAT | os.O_RDWR)
+        fcntl.lockf(fd, fcntl.LOCK_EX)
+        os.rename({str(folder / 'tmp')!r}, {str(folder / LOCK_NAME)!r})
+        time.sleep(0.5)
+        os.write(fd, json.dumps({{"pid": os.getpid(), "host": "h", "program": "tofsi optimize",
+                                  "started": "now"}}).encode())
+        time.sleep(30)
+    """)])
+    try:
+        wait_for(folder / LOCK_NAME)
+        with pytest.raises(InputError, match=f"in use by tofsi optimize \\(pid {owner.pid} on host h"):
+            FolderLock(folder, "tofsi solve").acquire()
+    finally:
+        owner.kill()
+        owner.wait()
+
+
 # ---- issue 25: sweeps and options refused before computing --------------------------------------
 @pytest.mark.parametrize("sweep,says", [("mover.layers[0]=nan:1:0.1", "not a finite number"),
                                         ("mover.layers[0]=1:inf:1", "not a finite number"),

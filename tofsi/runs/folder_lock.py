@@ -27,6 +27,7 @@ import json
 import logging
 import os
 import socket
+import time
 from pathlib import Path
 
 from tofsi.core.errors import InputError
@@ -53,6 +54,18 @@ def _read(fd: int) -> dict:
     except (OSError, ValueError):
         return {}
     return owner if isinstance(owner, dict) else {}
+
+
+def _owner_once_written(fd: int, wait_s: float = 2.0) -> dict:
+    """The owner's record, read again for up to ``wait_s`` while it is still empty: the owner
+    writes it just after taking the record lock, so a run refused in between would otherwise
+    name "another run (starting)" instead of the run that holds the folder."""
+    deadline = time.monotonic() + wait_s
+    owner = _read(fd)
+    while not owner and time.monotonic() < deadline:
+        time.sleep(0.02)
+        owner = _read(fd)
+    return owner
 
 
 class FolderLock:
@@ -88,7 +101,7 @@ class FolderLock:
             try:
                 fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as err:
-                owner = _read(fd)
+                owner = _owner_once_written(fd)
                 os.close(fd)
                 if err.errno not in (errno.EACCES, errno.EAGAIN):
                     raise InputError(key, str(self.path.parent), f"cannot lock the folder "
