@@ -11,10 +11,11 @@ continuation (a finite-strain structure's load steps: ``direct`` of
 :meth:`~tofsi.core.blocks.FieldBlock.solve`), so that a start the full inflow
 cannot reach fails after one Newton of the structure instead of after its
 load steps and the mover's cutbacks, only for the ramp below to begin anyway
-(the large scene's first two-way solve at 80 x 40: the structure's 25 Newton
-iterations alone, where before they were followed by its load steps with 2
-cutbacks and then the mover's 16 cutbacks; benchmarks/README.md); a structure stiff enough to need no ramp
-converges by that Newton alone. The path is one of two parameters:
+(the large scene's first two-way solve at 80 x 40: the structure's Newton
+alone, where before it was followed by its load steps with 2 cutbacks and
+then the mover's 16 cutbacks; benchmarks/README.md), and that Newton stops
+as soon as its residual has not halved in 8 iterations (12 there, not 25);
+a structure stiff enough to need no ramp converges by that Newton alone. The path is one of two parameters:
 
 * **the densities**, when the warm start is a converged state of the coupled
   problem at other densities (the previous design of an optimization, also

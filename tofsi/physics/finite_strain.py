@@ -60,6 +60,9 @@ FORCING_CAP = 1e-2
 # O(g^3 |grad u|) relative (1e-18 for |grad u| = 1), and the void of a design (rho ~ 1e-6
 # after projection, g ~ 5e-8) skips the kernel.
 LINEAR_BELOW = 1e-6
+# A Newton without load steps of its own (a coupled solve's direct attempt) fails when its residual has
+# not halved in this many iterations: its caller's path is cheaper than the crawl.
+STALL_ITERATIONS = 8
 
 
 @dataclass
@@ -236,7 +239,8 @@ class FiniteStrainElasticity:
                 report.warm_start = True
         f0 = self.bc.homogenize(assemble_vector(self.dofs, state.forces, self.size))
         try:
-            u, state = self._newton(start, state, f, 1.0, rho, simp, solver, report)
+            u, state = self._newton(start, state, f, 1.0, rho, simp, solver, report,
+                                    patience=None if load_steps else STALL_ITERATIONS)
         except StepFailed as failed:
             if not load_steps:
                 self._fail(failed, 0.0, report, rho, simp, "Newton to the full load without load steps")
@@ -289,10 +293,14 @@ class FiniteStrainElasticity:
              "reason": str(failed), "newton_iterations": report.newton_iterations,
              "residual_history": report.residual_history[-3:]}, state=failed.u)
 
-    def _newton(self, u, state, target_f, load: float, rho, simp, solver, report: FiniteStrainReport):
+    def _newton(self, u, state, target_f, load: float, rho, simp, solver, report: FiniteStrainReport,
+                patience: int | None = None):
         """Newton to the load ``target_f`` (the step's ``load`` factor, for the log) from ``u`` and its
         element values ``state``; returns ``(u, state)`` or raises :class:`StepFailed` with the
-        last iterate."""
+        last iterate. With ``patience`` (a Newton without load steps of its own, whose caller
+        continues along a path when it fails) it also stops when the residual has not halved in
+        ``patience`` iterations: the large scene's direct attempt at 80 x 40 crawled from 9.9 to 2.5
+        in 25 iterations before failing."""
         s = self.settings
         history: list[float] = []
         report.residual_history.append(history)
@@ -310,6 +318,8 @@ class FiniteStrainElasticity:
                 return u, state
             if it == s.max_newton:
                 raise StepFailed(f"{s.max_newton} Newton iterations", u)
+            if patience and it >= patience and min(history[-patience:]) > 0.5 * history[-patience - 1]:
+                raise StepFailed(f"the residual did not halve in {patience} Newton iterations", u)
             du = solver.solve(self.bc.matrix(state.tangents), -r,
                               rtol=min(FORCING_CAP, forcing_term(history, target)))
             du[self.bc.fixed] = 0.0
