@@ -3,7 +3,10 @@ continuation stage of an FSI scene, at the wall design of ``tests/mpi_fsi_proble
 noise) and a prescribed structural displacement bending the wall downstream; every rank
 alike. Rank 0 saves the motion ``x``, its report's counts, and for a seeded random ``rhs``
 the transposed solve ``lam = D_x^-T rhs`` and the transposed partials ``lam^T D_u``,
-``lam^T D_rho``. When the move fails, each rank writes its message to ``OUT.rank<r>.txt``.
+``lam^T D_rho``; for a mover in increments also the tangent sweep ``x_dot`` along a seeded
+random ``u_dot`` and the reverse sweep of ``rhs`` (``u_bar``, ``rho_bar`` of ``x = M(u, rho)``,
+twice: after the first sweep, the mover moves again to another motion and the move's matrices
+are assembled anew). When the move fails, each rank writes its message to ``OUT.rank<r>.txt``.
 
     mpiexec -n 2 python tests/mpi_slab_mover.py SCENE OUT.npz [KEY=VALUE ...]
 """
@@ -38,6 +41,14 @@ except NumericalError as err:
 rhs = np.random.default_rng(3).standard_normal(x.size)
 lam = lin.solve_transpose(rhs)
 bars, rho_bar = lin.transpose_partials(lam)
+sweeps = {}
+if problem.mover.incremental:
+    u_dot = np.random.default_rng(4).standard_normal(x.size)
+    sweeps["u_dot"], sweeps["x_dot"] = u_dot, lin.jvp(u_dot)
+    sweeps["vjp_u"], sweeps["vjp_rho"] = lin.vjp(rhs)
+    problem.mover.move(0.5 * u, rho)                      # another move on the same matrices
+    sweeps["again_u"], sweeps["again_rho"] = lin.vjp(rhs)
 if rank == 0:
     np.savez(out, rho=rho, u=u, x=x, rhs=rhs, lam=lam, u_bar=bars["u"], rho_bar=rho_bar,
-             newton=report["newton_iterations"], increments=report["increments"])
+             newton=report["newton_iterations"], increments=report["increments"],
+             factorizations=report["factorizations"], **sweeps)

@@ -23,11 +23,12 @@ What is distributed and what is replicated:
   kernel, its tangent assembled by the same slabs and factorized across the ranks by MUMPS,
   Newton with the Yeoh mover's load steps, cutbacks and line search, its transposed solve and
   transposed partials likewise (:class:`~tofsi.parallel.slab_mover.SlabMover`);
+* a move in increments (the spring analogy or linear elasticity in several): each increment's
+  element matrices on the rank's elements, its system by the same slabs and MUMPS, the reverse
+  sweep likewise (:class:`~tofsi.parallel.slab_increments.SlabIncrementMover`);
 * replicated on every rank: the vectors ``u``, ``x``, ``f`` (``O(n)``, the same bits on
-  every rank), the mover's design data (blend indicator, density-grown stiffening factors and
-  their chain rule to ``rho``, ``O(E)``), and a path-dependent move (the spring analogy or
-  linear elasticity in several increments: the serial mover block, its tangent and reverse
-  sweeps).
+  every rank; a move's ``x_k`` per increment), the mover's design data (blend indicator,
+  density-grown stiffening factors and their chain rule to ``rho``, ``O(E)``).
 
 The two-way cycle ``x -> w -> f -> u -> x~ = D^-1(u)`` is solved partitioned: the fixed
 point ``x = x~(x)`` by IQN-ILS (Degroote et al. 2009: the next ``x`` from the least-squares
@@ -55,6 +56,7 @@ from tofsi.optimization.problem import mesh_quality
 from tofsi.optimization.protocol import Evaluation
 from tofsi.parallel.flow_problem import DistributedFlowProblem
 from tofsi.parallel.slab_flow import SlabCoupling
+from tofsi.parallel.slab_increments import SlabIncrementMover
 from tofsi.parallel.slab_mover import SlabMover
 from tofsi.parallel.slab_structure import SlabStructure
 
@@ -95,8 +97,9 @@ class DistributedFsiProblem(DistributedFlowProblem):
         model = self.model
         self.coupling = SlabCoupling(self.engine, model.structure)
         self.structure = SlabStructure(model.structure, self.engine)
-        motion = getattr(model, "motion", None)              # a residual-form mover by slabs
-        self.mover = None if motion is None or motion.path_dependent else SlabMover(motion, self.coupling)
+        motion = getattr(model, "motion", None)              # the mover by slabs
+        mover = None if motion is None else SlabIncrementMover if motion.path_dependent else SlabMover
+        self.mover = None if mover is None else mover(motion, self.coupling)
         self.x: np.ndarray | None = None               # the last converged mesh motion (the next start)
         self.tol = min(self.scene.coupled.tol, 1e-10)
         self.max_iter = self.scene.coupled.max_iter
@@ -130,19 +133,14 @@ class DistributedFsiProblem(DistributedFlowProblem):
             w, report = self._flow(None, rho, params, True)
             f, u = self._structure(w, None, rho, params)
             return {"w": w, "u": u, "x": None, "f": f, "lin_x": None, "reports": {"w": report}}
-        mover = system.by_name["x"]
-        x = np.zeros(mover.size) if self.x is None else np.array(self.x, dtype=float)
+        x = np.zeros(system.by_name["x"].size) if self.x is None else np.array(self.x, dtype=float)
         lin_x, dR, dX, history = None, [], [], []
         previous = None
         for it in range(self.max_iter):
             X = x.reshape(-1, 2)
             w, report = self._flow(X, rho, params, it == 0)
             f, u = self._structure(w, X, rho, params)
-            if self.mover is None:                                     # a move in increments: replicated
-                x_new, lin_x, moved = mover.solve({"u": u, "x": x}, rho, params, guess=x.reshape(-1, 2),
-                                                  previous=lin_x)
-            else:
-                x_new, lin_x, moved = self.mover.move(u, rho, guess=x)
+            x_new, lin_x, moved = self.mover.move(u, rho, guess=x)
             r = x_new - x
             change = float(np.linalg.norm(r)) / max(float(np.linalg.norm(x_new)), 1e-300)
             history.append(change)

@@ -102,6 +102,10 @@ class SlabMatrix:
         self.factorizations += 1
         self.fresh, self.stale = True, False
 
+    def expire(self) -> None:
+        """The kept factors precondition no later matrix: the next solve refactorizes (a new design)."""
+        self.stale = True
+
     def solve(self, b: np.ndarray, transpose: bool = False, rtol: float | None = None) -> np.ndarray:
         """``A^-1 b`` (or ``A^-T b``), ``b`` and the result replicated ``(2n,)`` in the serial numbering.
 

@@ -83,9 +83,12 @@ class SlabMover:
     """The residual-form mover of ``motion`` (a :class:`~tofsi.physics.mesh_motion.MeshMotion`) on
     the slabs of ``coupling``'s engine (a :class:`~tofsi.parallel.slab_flow.SlabCoupling`)."""
 
+    incremental = False      # a move in increments: :class:`tofsi.parallel.slab_increments.SlabIncrementMover`
+
     def __init__(self, motion, coupling):
-        if motion.path_dependent:
-            raise ValueError(f"the {motion.mover.name} mover has no residual form to distribute")
+        if motion.path_dependent != self.incremental:
+            raise ValueError(f"the {motion.mover.name} mover: "
+                             + ("no move in increments" if self.incremental else "no residual form to distribute"))
         from mpi4py import MPI
         self.motion, self.mover, self.params = motion, motion.mover, motion.mover.params
         self.allsum, self.mpi, self.land = coupling.allsum, coupling.mpi, MPI.LAND
@@ -99,11 +102,16 @@ class SlabMover:
         self.fixed = np.unique(base.fixed_dofs)
         self.is_fixed = np.zeros(self.size, dtype=bool)
         self.is_fixed[self.fixed] = True
-        halo = element_dofs(base.quads[in_halo[base.element_ids]], 2)
-        self.matrix = SlabMatrix(coupling.engine.comm, mesh, halo, self.fixed, recycle=True)
+        self.halo = element_dofs(base.quads[in_halo[base.element_ids]], 2)
+        self.comm = coupling.engine.comm
+        self.matrix = None if self.incremental else self.new_matrix()
         self.corners = self.mover.name in CORNER_CHECKED
         self.kept = Kept()                       # the design's SlabDesign, keyed by the densities
         self.factored_at = None                  # the state whose tangent the factors hold
+
+    def new_matrix(self) -> SlabMatrix:
+        """A distributed matrix on the mesh's node dofs, its factors recycled by later matrices."""
+        return SlabMatrix(self.comm, self.motion.mesh, self.halo, self.fixed, recycle=True)
 
     # ---- the design -------------------------------------------------------------------------
     def design(self, rho) -> SlabDesign:

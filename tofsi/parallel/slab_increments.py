@@ -1,0 +1,291 @@
+"""A mover in increments by slabs: each increment's solve on the updated mesh across the ranks, and its sweeps.
+
+The spring analogy and linear elasticity with ``increments = N > 1`` have no residual form: they
+apply the structure's motion ``t`` in ``N`` equal steps ``d = t / N`` on the updated mesh
+(:mod:`movers.incremental`), increment ``k`` solving
+
+    A_k dx = [W (-K_k d_p) + S_c d]_f,  dx_p = d_p,   A_k = P_f (W K_k + S_c) P_f + P_p,
+    K_k = sum_e f_e K0_e(X + x_k),   x_(k+1) = x_k + dx.
+
+:class:`SlabIncrementMover` does that with the serial mover's own element kernel
+(:class:`movers.incremental.IncrementKernel`) on the moving quads of the rank's slab only: each
+rank evaluates ``K0_e(X + x_k)`` of its quads, the right-hand side is the sum over ranks of the
+slabs' products, and ``A_k`` is assembled by the slabs into a distributed AIJ matrix
+(:class:`~tofsi.parallel.slab_matrix.SlabMatrix`, one per increment) solved by GMRES to
+``1e-3 linear_tol`` preconditioned by MUMPS factors of increment ``k``'s system in an earlier move
+at the design, refactorized across the ranks when they go stale (what
+:class:`movers.increment_solvers.IncrementSolvers` does serially). The spring's selective
+diagonals come from two trial increments (every quad split 1-3, then 2-4) solved the same way,
+each rank choosing for its own quads by their skewness. ``x_k`` (2n,) and the quality per
+increment are replicated.
+
+The derivatives of a move (:class:`SlabIncrements`, built on first use) follow
+:func:`movers.incremental.increments_jvp` and :func:`~movers.incremental.increments_vjp`
+term by term, each rank holding its quads' share: the element forces ``K0_e dx_e``, the rows
+``W f K0_e`` of the quads with a fixed dof, the shape derivative ``W f D_k`` of the forces
+(:meth:`~movers.incremental.IncrementKernel.force_derivative`) as element blocks ``(E_r, 8, 8)``,
+applied and summed over the ranks; the solves with ``A_k`` and ``A_k^T`` by the exact MUMPS
+factors of the move's own ``A_k`` (made on first use; they then precondition the next moves, as
+the serial store gives its factors back). The stiffening's and the blend's adjoints are chained
+to ``rho`` by the serial :class:`~tofsi.physics.mesh_motion.MeshMotion` (``O(E)``, replicated).
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import numpy as np
+
+from movers.base import MoveReport, element_apply, quality_record
+from movers.increment_solvers import KEPT_FACTORS_TOL_RATIO
+from movers.spring_kernel import DIAGONALS
+from tofsi.core.errors import NumericalError
+from tofsi.fem.assembly import assemble_vector
+from tofsi.mesh import quality
+from tofsi.parallel.slab_mover import SlabDesign, SlabMover
+
+
+class SlabIncrementMover(SlabMover):
+    """The mover in increments of ``motion`` (a :class:`~tofsi.physics.mesh_motion.MeshMotion`) on
+    the slabs of ``coupling``'s engine: :meth:`move` returns ``(x, linearization, report)`` as
+    :meth:`SlabMover.move` does, the linearization an explicit map's (:class:`SlabMoveLinearization`)."""
+
+    incremental = True
+
+    def __init__(self, motion, coupling):
+        super().__init__(motion, coupling)
+        self.n = int(self.params.increments)
+        self.matrices = [self.new_matrix() for _ in range(self.n)]     # increment k's system
+        self.trials = {}                                 # the spring's selective diagonals: code -> matrix
+        self.owners = [None] * self.n                    # the move (its token) whose A_k each matrix holds
+        self.tokens = itertools.count()
+        self.rtol = KEPT_FACTORS_TOL_RATIO * float(getattr(self.params, "linear_tol", 1e-10))
+        self.design_key = None                           # the densities the kept factors belong to
+
+    def kernel(self, codes: np.ndarray | None = None):
+        """The serial mover's :class:`~movers.incremental.IncrementKernel` of the slab's quads
+        (the spring's: for the diagonal ``codes`` of those quads)."""
+        return self.mover.element_matrices(codes) if self.mover.name == "spring" else self.mover.element_matrices()
+
+    def solver_counts(self) -> tuple[int, int]:
+        every = [*self.matrices, *self.trials.values()]
+        return sum(m.factorizations for m in every), sum(m.krylov_iterations for m in every)
+
+    # ---- one increment ----------------------------------------------------------------------
+    def system(self, d: SlabDesign, kernel, x: np.ndarray, step: np.ndarray, matrix) -> tuple[np.ndarray, np.ndarray]:
+        """Assemble increment's ``A`` at ``x`` (2n,) into ``matrix``; returns its right-hand side
+        ``[W (-K d_p) + S_c d]_f, d_p`` and the slab's unscaled element matrices ``K0 (E_r, 8, 8)``."""
+        Xe = d.slab.points[self.quads] + x.reshape(-1, 2)[self.quads]
+        K0 = kernel(Xe)
+        Ke = K0 * d.slab.stiffening[:, None, None]
+        step_p = np.where(self.is_fixed, step, 0.0)
+        rhs = -self.apply(d, Ke, step_p) if np.any(step_p) else np.zeros_like(step)
+        rhs = d.weight * rhs + d.diag * step
+        rhs[self.fixed] = step[self.fixed]
+        matrix.assemble(self.dofs, Ke * d.weight[self.dofs][:, :, None], d.diag)
+        return rhs, K0
+
+    def increment(self, d, kernel, x, step, matrix, rtol) -> np.ndarray:
+        """The change ``dx`` (2n,) of one increment from ``x`` towards ``x + step``."""
+        rhs, _ = self.system(d, kernel, x, step, matrix)
+        dx = matrix.solve(rhs, rtol=rtol)
+        dx[self.fixed] = step[self.fixed]                # exact, whatever the solver's tolerance
+        return dx
+
+    def diagonals(self, d: SlabDesign, step: np.ndarray) -> np.ndarray:
+        """The spring's selective diagonals of the slab's quads: of two trial first increments
+        (every quad 1-3, every quad 2-4), the one leaving the quad less skewed (ties: 1-3)."""
+        skew = []
+        for code in (0, 1):
+            matrix = self.trials.setdefault(code, self.new_matrix())
+            codes = np.full(len(self.quads), code)
+            dx = self.increment(d, self.kernel(codes), np.zeros_like(step), step, matrix,
+                                float(getattr(self.params, "linear_tol", 1e-10)))
+            skew.append(quality.skewness(d.slab.points + dx.reshape(-1, 2), self.quads))
+        return np.where(skew[1] > skew[0], 1, 0)
+
+    # ---- the forward move -------------------------------------------------------------------
+    def move(self, u, rho, guess=None):
+        """``(x (2n,), linearization, report)``: the mesh moved in increments with the structure's
+        ``u`` at ``rho`` (``guess`` is not used: a move in increments starts from rest)."""
+        d = self.design(rho)
+        key = self.motion.density_key(rho)
+        if key != self.design_key:                       # a new design starts afresh, as serially
+            for matrix in [*self.matrices, *self.trials.values()]:
+                matrix.expire()
+            self.design_key = key
+        problem = self.motion.problem(rho)               # replicated: the quality records
+        prescribed = self.motion.target(u).reshape(-1)
+        target = prescribed.copy() if d.blend is not None else np.where(self.is_fixed, prescribed, 0.0)
+        t0, counts = time.perf_counter(), self.solver_counts()
+        report = MoveReport(mover=self.mover.name)
+        step = target / self.n
+        codes = None
+        if self.mover.name == "spring":
+            choice = self.params.diagonals
+            codes = (self.diagonals(d, step) if choice == "selective"
+                     else np.full(len(self.quads), DIAGONALS.index(choice)))
+            report.linear_solves += 2 if choice == "selective" else 0
+        kernel = self.kernel(codes)
+        lin = SlabMoveLinearization(self, d, kernel, target, rho, next(self.tokens))
+        x = np.zeros_like(target)
+        states = [x]
+        for k in range(self.n):
+            try:
+                dx = self.increment(d, kernel, x, step, self.matrices[k], self.rtol)
+            except NumericalError as err:
+                report.message = str(err)
+                raise NumericalError(f"{report.mover} mover (by slabs): {err} at increment {k + 1} of {self.n}",
+                                     {"report": report.as_dict()}, state=x.reshape(-1, 2)) from err
+            self.owners[k] = lin.token
+            x = x + dx
+            states.append(x)
+            report.linear_solves += 1
+            report.increments += 1
+            report.quality.append(quality_record(problem, x.reshape(-1, 2), (k + 1) / self.n))
+        lin.states = states
+        last = report.quality[-1]
+        now = self.solver_counts()
+        report.factorizations, report.krylov_iterations = now[0] - counts[0], now[1] - counts[1]
+        report.wall_time_s = time.perf_counter() - t0
+        if last["n_inverted"] and not problem.accept_inverted:
+            report.message = (f"{last['n_inverted']} inverted element(s); worst element {last['worst_element']} "
+                              f"(skewness {last['min_skewness']:.2g})")
+            raise NumericalError(f"{report.mover} mover (by slabs): {report.message}",
+                                 {"report": report.as_dict(), "quality": last}, state=x.reshape(-1, 2))
+        if last["n_inverted"]:
+            report.message = f"{last['n_inverted']} inverted element(s), accepted"
+        report.converged = True
+        return x, lin, report.as_dict()
+
+
+class SlabMoveLinearization:
+    """A move in increments as the explicit map ``x = M(u, rho)`` (the residual ``x - M``): the
+    transposed solve is the identity, the transposed partials minus the reverse sweep
+    (:meth:`vjp`); :meth:`jvp` the tangent sweep. What the sweeps share is built on first use
+    (:class:`SlabIncrements`)."""
+
+    def __init__(self, mover: SlabIncrementMover, design: SlabDesign, kernel, target, rho, token: int):
+        self.mover, self.design, self.kernel, self.target, self.rho = mover, design, kernel, target, rho
+        self.token = token                               # which move's systems the mover's matrices hold
+        self.states: list[np.ndarray] = []
+        self.increments = None
+
+    def derivatives(self) -> "SlabIncrements":
+        if self.increments is None:
+            self.increments = SlabIncrements(self)
+        return self.increments
+
+    def solve_transpose(self, rhs: np.ndarray) -> np.ndarray:
+        return np.array(rhs, dtype=float).reshape(-1)
+
+    def transpose_partials(self, lam: np.ndarray):
+        """``({"u": -M_u^T lam}, -M_rho^T lam)``."""
+        u_bar, rho_bar = self.vjp(lam)
+        return {"u": -u_bar}, -rho_bar
+
+    def vjp(self, x_bar: np.ndarray):
+        """``(u_bar (2n,), rho_bar (E,))`` for ``x_bar`` (2n,) on the moved mesh."""
+        motion = self.mover.motion
+        t_bar, f_bar, s_bar = self.derivatives().vjp(x_bar)
+        return motion.target_transpose(t_bar), motion.density_transpose(self.rho, s_bar, f_bar)
+
+    def jvp(self, u_dot: np.ndarray) -> np.ndarray:
+        """``x_dot`` (2n,) for a change ``u_dot`` (2n,) of the structure's motion, ``rho`` held."""
+        return self.derivatives().jvp(self.mover.motion.target(u_dot).reshape(-1))
+
+
+class SlabIncrements:
+    """What the tangent and reverse sweeps of one move need of its increments, each rank its
+    quads' share (:func:`movers.incremental.increments_jvp`, ``increments_vjp``): per increment
+    ``k`` the change ``dx_k``, the element forces ``K0_e dx_e (E_r, 8)``, the rows ``W f K0_e`` of
+    the quads with a fixed dof, the blocks ``W f D_k (E_r, 8, 8)`` of the forces' shape
+    derivative (``k > 0``) and, blended, ``K_k dx_k`` (2n,, summed over ranks)."""
+
+    def __init__(self, lin: SlabMoveLinearization):
+        m, d = lin.mover, lin.design
+        self.lin, self.m, self.d = lin, m, d
+        f = d.slab.stiffening
+        scale = f[:, None, None] * d.weight[m.dofs][:, :, None]       # rows of f_e W
+        self.edge = np.flatnonzero(m.is_fixed[m.dofs].any(axis=1))
+        self.dofs_edge = m.dofs[self.edge]
+        self.dx, self.forces, self.WK_edge, self.WD, self.Kdx = [], [], [], [], []
+        self.factored = [False] * m.n
+        for k in range(m.n):
+            x_k, dx = lin.states[k], lin.states[k + 1] - lin.states[k]
+            Xe = d.slab.points[m.quads] + x_k.reshape(-1, 2)[m.quads]
+            K0 = lin.kernel(Xe)
+            dx_e = dx[m.dofs]
+            forces = np.einsum("eab,eb->ea", K0, dx_e)
+            self.dx.append(dx)
+            self.forces.append(forces)
+            self.WK_edge.append((scale * K0)[self.edge])
+            self.WD.append(scale * lin.kernel.force_derivative(Xe, dx_e) if k > 0 else None)   # x_0 = 0
+            self.Kdx.append(None if d.blend is None else
+                            m.allsum(assemble_vector(m.dofs, f[:, None] * forces, dx.size)))
+
+    def solve(self, k: int, b: np.ndarray, transpose: bool) -> np.ndarray:
+        """``A_k^-1 b`` (or ``A_k^-T b``) with the exact factors of this move's ``A_k`` (its matrix
+        assembled again first where a later move has used it since)."""
+        m, lin = self.m, self.lin
+        matrix = m.matrices[k]
+        if m.owners[k] != lin.token:
+            m.system(self.d, lin.kernel, lin.states[k], lin.target / m.n, matrix)
+            m.owners[k] = lin.token
+        return matrix.solve(b, transpose=transpose)        # exact: refactorized unless fresh
+
+    def edge_apply(self, k: int, v: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """``W K_k v`` (or ``K_k^T W v``) from the quads with a fixed dof, summed over ranks."""
+        return self.m.allsum(element_apply(self.WK_edge[k], v, self.dofs_edge, transpose))
+
+    def shape_apply(self, k: int, v: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """``P_f W f D_k v`` (or its transpose's product with ``v`` zero on the fixed dofs)."""
+        r = self.m.allsum(element_apply(self.WD[k], v, self.m.dofs, transpose))
+        if not transpose:
+            r[self.m.fixed] = 0.0
+        return r
+
+    def jvp(self, t_dot: np.ndarray) -> np.ndarray:
+        """Tangent sweep: ``x_dot`` (2n,) along the change ``t_dot`` (2n,) of the target."""
+        m, d = self.m, self.d
+        step = np.asarray(t_dot, dtype=float).reshape(-1) / m.n
+        step_p = np.where(m.is_fixed, step, 0.0)
+        moved = bool(np.any(step_p))
+        x_dot = np.zeros_like(step)
+        for k in range(m.n):
+            rhs = d.diag * step                                        # S_c d_dot
+            if moved:
+                rhs -= self.edge_apply(k, step_p)
+            if self.WD[k] is not None:
+                rhs -= self.shape_apply(k, x_dot)
+            rhs[m.fixed] = step[m.fixed]
+            dx = self.solve(k, rhs, False)
+            dx[m.fixed] = step[m.fixed]
+            x_dot = x_dot + dx
+        return x_dot
+
+    def vjp(self, x_bar: np.ndarray):
+        """Reverse sweep: ``(target_bar (2n,), stiffening_bar (moving quads,), blend_bar (n,))``."""
+        m, d, lin = self.m, self.d, self.lin
+        step = lin.target / m.n
+        x_bar = np.array(x_bar, dtype=float).reshape(-1)
+        step_bar = np.zeros_like(x_bar)
+        f_slab = np.zeros(len(m.quads))
+        s_bar = np.zeros(x_bar.size // 2)
+        for k in range(m.n - 1, -1, -1):
+            b = x_bar.copy()
+            b[m.fixed] = 0.0
+            lam = self.solve(k, b, True)
+            lam[m.fixed] = 0.0
+            step_bar[m.fixed] += x_bar[m.fixed] - self.edge_apply(k, lam, transpose=True)[m.fixed]
+            if d.blend is not None:                      # the increment's D = W K dx + S_c (dx - d)
+                t_blend, s_part = d.blend.partials(lam, self.dx[k], step, self.Kdx[k])
+                step_bar -= t_blend
+                s_bar -= s_part
+            f_slab -= np.einsum("ea,ea->e", (d.weight * lam)[m.dofs], self.forces[k])
+            if self.WD[k] is not None:                   # d/dx_k [(W lam) . f K0(x_k) dx]
+                x_bar = x_bar - self.shape_apply(k, lam, transpose=True)
+        f_bar = np.zeros(len(m.motion.base.quads))
+        f_bar[m.local] = f_slab
+        return step_bar / m.n, m.allsum(f_bar), s_bar
