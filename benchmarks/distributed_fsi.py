@@ -3,14 +3,15 @@
 Run in the PETSc environment (``docs/parallel.md``), as root with the Open MPI flag:
 
     mpiexec --allow-run-as-root -n 2 /work/venv-petsc/bin/python -m benchmarks.distributed_fsi \
-        --elements-x 160 [--h 0.00884] [--amg hypre]
+        --elements-x 160 [--h 0.00884] [--amg hypre] [--set mover.name=spring --set mover.spring.increments=10]
 
 ``examples/scenes/beam_in_channel_optimization_fsi.toml`` at ``--elements-x`` elements along
 the channel (half as many across), its last continuation stage (two-way, beta 16, the Yeoh
 mover with its stiffened layers), the wall design of ``tests/mpi_fsi_problem.py`` without its
 noise (density 0.9 in ``|x - 1| < 0.15``, ``y < 0.6``, 0.1 elsewhere), solved from rest and
 differentiated once (:class:`tofsi.parallel.fsi_problem.DistributedFsiProblem`: the flow and
-the structure and the Yeoh mover by slabs). Each rank prints one line: the setup and
+the structure and the Yeoh mover by slabs; ``--set`` changes the scene, e.g. the spring
+analogy in increments, by slabs too). Each rank prints one line: the setup and
 evaluation wall times, its process CPU seconds and its peak resident memory
 (``ru_maxrss``) in GB, and the compliance.
 """
@@ -30,6 +31,7 @@ def main() -> None:
     parser.add_argument("--elements-x", type=int, default=80)
     parser.add_argument("--h", type=float, default=None, help="element size [m] (default: 2 / elements-x)")
     parser.add_argument("--amg", default="hypre", choices=["gamg", "hypre"])
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a scene override")
     args = parser.parse_args()
     import numpy as np
     from petsc4py import PETSc
@@ -39,7 +41,7 @@ def main() -> None:
     from tofsi.parallel.fsi_problem import DistributedFsiProblem
     t0, c0 = time.perf_counter(), time.process_time()
     h = 2.0 / args.elements_x if args.h is None else args.h
-    scene = tofsi.load_scene(SCENE, [f"mesh.h_min={h!r}", f"mesh.h_max={h!r}", f"solver.flow_amg={args.amg}"])
+    scene = tofsi.load_scene(SCENE, [f"mesh.h_min={h!r}", f"mesh.h_max={h!r}", f"solver.flow_amg={args.amg}", *args.set])
     problem = DistributedFsiProblem(scene)
     problem.set_stage(continuation(scene, scene.design.n_stages - 1))
     centroids = problem.model.mesh.centroids[problem.map.design]

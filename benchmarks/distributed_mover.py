@@ -3,14 +3,15 @@
 Run in the PETSc environment (``docs/parallel.md``), as root with the Open MPI flag:
 
     mpiexec --allow-run-as-root -n 2 /work/venv-petsc/bin/python -m benchmarks.distributed_mover \
-        --elements-x 140 --mover slabs|replicated
+        --elements-x 140 --mover slabs|replicated [--set mover.name=spring --set mover.spring.increments=10]
 
 ``examples/scenes/beam_in_channel_optimization_fsi.toml`` at ``--elements-x`` elements along
 the channel, its last continuation stage (the Yeoh mover, density blend, stiffened layers grown
-from the densities), the wall design of ``benchmarks/distributed_fsi.py`` and a prescribed
+from the densities; ``--set`` changes the scene, e.g. a mover in increments), the wall design of ``benchmarks/distributed_fsi.py`` and a prescribed
 structural displacement bending the wall 8 cm downstream (``tests/mpi_slab_mover.py``'s). One
-move from rest, one transposed solve and the transposed partials, either by slabs
-(:class:`tofsi.parallel.slab_mover.SlabMover`) or replicated (the serial
+move from rest, one transposed solve and the transposed partials (a mover in increments: the
+reverse sweep), either by slabs (:class:`tofsi.parallel.slab_mover.SlabMover`,
+:class:`tofsi.parallel.slab_increments.SlabIncrementMover`) or replicated (the serial
 :class:`~tofsi.physics.mesh_motion.MeshMotion` on every rank, as the distributed FSI problem
 ran it before). Each rank prints its process CPU seconds of the mover's work, its peak
 resident memory (``ru_maxrss``) after the setup and after the mover's work, and the mover's own
@@ -56,6 +57,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--elements-x", type=int, default=80)
     parser.add_argument("--mover", default="slabs", choices=["slabs", "replicated"])
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a scene override")
     args = parser.parse_args()
     import numpy as np
     from petsc4py import PETSc
@@ -64,7 +66,7 @@ def main() -> None:
     from tofsi.coupling.coupled import continuation
     from tofsi.parallel.fsi_problem import DistributedFsiProblem
     h = 2.0 / args.elements_x
-    scene = tofsi.load_scene(SCENE, [f"mesh.h_min={h!r}", f"mesh.h_max={h!r}"])
+    scene = tofsi.load_scene(SCENE, [f"mesh.h_min={h!r}", f"mesh.h_max={h!r}", *args.set])
     problem = DistributedFsiProblem(scene)
     problem.set_stage(continuation(scene, scene.design.n_stages - 1))
     mesh, motion = problem.model.mesh, problem.model.motion
@@ -84,6 +86,10 @@ def main() -> None:
         x, lin, _ = problem.mover.move(u, rho)
         lam = lin.solve_transpose(rhs)
         _, rho_bar = lin.transpose_partials(lam)
+    elif motion.path_dependent:
+        result = motion.move(u, rho)
+        x = result.displacement.ravel()
+        _, rho_bar = motion.vjp(result, rhs.reshape(-1, 2), rho)
     else:
         x = motion.move(u, rho).displacement.ravel()
         lam = motion.transposed_solve(x, rho, rhs)
