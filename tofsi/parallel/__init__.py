@@ -22,7 +22,9 @@
   ``SlabMatrix``, the serial Yeoh mover's Newton with load steps and cutbacks
   (:class:`movers.newton.LoadStepNewton`), its
   transposed solve and partials;
+* :class:`~tofsi.parallel.slab_increments.SlabIncrementMover` -- a mover in increments (the spring
+  analogy, linear elasticity with ``increments > 1``) by slabs: each increment's element matrices on
+  a rank's quads, its system on its own ``SlabMatrix``, the tangent and reverse sweeps;
 * :class:`~tofsi.parallel.fsi_problem.DistributedFsiProblem` -- compliance FSI (small strain, one-way
-  or two-way with any mover), the flow, the structure and a residual-form mover by slabs (a move in
-  increments replicated).
+  or two-way with any mover), the flow, the structure and the mover by slabs.
 """

@@ -65,8 +65,8 @@ class SlabIncrementMover(SlabMover):
 
     def kernel(self, codes: np.ndarray | None = None):
         """The serial mover's :class:`~movers.incremental.IncrementKernel` of the slab's quads
-        (the spring's: for the diagonal ``codes`` of those quads)."""
-        return self.mover.element_matrices(codes) if self.mover.name == "spring" else self.mover.element_matrices()
+        (a mover that triangulates its quads, the spring: for the diagonal ``codes`` of those quads)."""
+        return self.mover.element_matrices() if codes is None else self.mover.element_matrices(codes)
 
     def solver_counts(self) -> tuple[int, int]:
         every = [*self.matrices, *self.trials.values()]
@@ -121,9 +121,8 @@ class SlabIncrementMover(SlabMover):
         t0, counts = time.perf_counter(), self.solver_counts()
         report = MoveReport(mover=self.mover.name)
         step = target / self.n
-        codes = None
-        if self.mover.name == "spring":
-            choice = self.params.diagonals
+        codes, choice = None, getattr(self.params, "diagonals", None)      # the spring's triangulation
+        if choice is not None:
             codes = (self.diagonals(d, step) if choice == "selective"
                      else np.full(len(self.quads), DIAGONALS.index(choice)))
             report.linear_solves += 2 if choice == "selective" else 0
