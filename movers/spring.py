@@ -31,8 +31,11 @@ from movers.spring_kernel import DIAGONALS, TriangleSplit, quad_force_derivative
 from tofsi.mesh import quality
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError
+from tofsi.core.kept import Kept, input_key
 
 CHOICES = ("1-3", "2-4", "both", "selective")
+SCHEMES = ("euler", "midpoint")
+EXTRAPOLATION = {"euler": 0.0, "midpoint": 0.5}     # movers.incremental.IncrementKernel's
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,9 @@ class SpringParams:
     renamed_keys = {"linear_solver": "tangent_solver"}     # the old name, accepted with a warning
     diagonals: str = option("selective", choices=CHOICES, doc="quad triangulation")
     increments: int = option(30, ge=1, le=100_000, doc="equal increments of the motion")
+    scheme: str = option("euler", choices=SCHEMES,
+                         doc="each increment's stiffness: at its start (euler, the paper's) or at its "
+                             "midpoint extrapolated from the increment before (midpoint, second order)")
     torsion_scale: float = option(1.0, gt=0, doc="torsional stiffness scale TSC")
     tangent_solver: str = option("direct", choices=("direct", "amg"),
                                  doc="the tangent's linear solver: sparse LU or AMG-CG")
@@ -53,13 +59,18 @@ class SpringMover(Mover):
     Params = SpringParams
     warm_starts = True          # ``solver``: the factorizations of earlier moves at the design
 
+    def __init__(self, params):
+        super().__init__(params)
+        self.kept_split = Kept()        # the last diagonal codes' TriangleSplit (built on first use)
+
     def element_matrices(self, codes: np.ndarray) -> IncrementKernel:
         """Unscaled quad matrices for the diagonal codes (complex-safe) and their forces' shape
         derivative (closed form)."""
         tsc = self.params.torsion_scale
-        split = functools.cache(lambda: TriangleSplit(codes))         # on first use
+        split = functools.cache(lambda: self.kept_split.get(input_key(codes), lambda: TriangleSplit(codes)))
         return IncrementKernel(lambda Xe: quad_stiffness(Xe, split(), tsc),
-                               lambda Xe, v: quad_force_derivative(Xe, v, split(), tsc))
+                               lambda Xe, v: quad_force_derivative(Xe, v, split(), tsc),
+                               EXTRAPOLATION[self.params.scheme])
 
     @property
     def path_dependent(self) -> bool:
