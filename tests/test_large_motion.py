@@ -122,7 +122,7 @@ def test_the_spring_in_increments_solves_two_way_at_large_motion():
 def test_a_move_in_increments_is_freed_with_its_last_reference_and_its_store_releases_pages_first(monkeypatch):
     """What a move in increments keeps for its derivatives (a factorization per increment) goes
     with the last reference to the move, not later: evaluations of the two-way objective and
-    gradient with the spring in its 10 increments leave no move, store or factorization to the
+    gradient with the spring in the scene's increments leave no move, store or factorization to the
     cyclic garbage collector (teeth: the coupling's LinearMap closed over its linearization, a
     cycle, and a design evaluation's stores piled up until Python's rare full collections, with
     their factors outside Python's accounting -- 8 GB at 80 x 40 after 70 iterations, issue 32).
@@ -152,11 +152,12 @@ def test_a_move_in_increments_is_freed_with_its_last_reference_and_its_store_rel
 @pytest.mark.slow
 def test_the_two_way_gradient_with_the_spring_in_increments_passes_the_taylor_test():
     """The gray post's two-way gradient (large scene's first two-way stage, 0.19 m) with the
-    spring in its 10 increments, solved by the monolithic Newton and differentiated through the
+    spring in the scene's 4 midpoint increments, solved by the monolithic Newton and differentiated through the
     transposed block Jacobian whose mesh coupling is the reverse sweep: along a direction that
     softens the post (void elements held: a little density there inverts their finite-strain
     elements under the flow), Taylor remainders fall as eps^2 from a step of 1e-3 (rate > 1.9)
-    and a central difference agrees to 1e-5 (2026-11-27: rates 1.97-1.99, 3.4e-8). Slow (12 s
+    and a central difference agrees to 1e-5 (2026-11-27, 10 increments at their start: rates
+    1.97-1.99, 3.4e-8). Slow (12 s
     under load); the default suite's is test_adjoint's monolithic spring-3."""
     from gradient_checks import check_total_derivative
     scene = load("beam_in_channel_optimization_large", *GRAY_POST, "mover.name=spring", "coupled.tol=1e-11")
