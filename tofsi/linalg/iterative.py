@@ -63,16 +63,21 @@ elements (the dissipation 0.1-1.2e-7 / - / 5.0e-6 / 0.5-1.1e-4), 0.4-7.4e-8 /
 / 1.5-1.7e-6 / 2.1-4.7e-5 at 180 x 90, for 70-77 / 58-64 / 49-54 / 39-46
 transposed GMRES iterations at 180 x 90 (the error is 1-20 times the
 tolerance: the compliance gradient is a difference of flow and structure
-parts several times its size). MMA needs far less: a relative gradient error
-``e`` moves its step by about ``e`` times the step, here at most 2e-5 of a
-step bounded by the move limit, against the stopping rule's design change
-``optimizer.tol_change`` (2e-3); a 14-iteration optimization's objective
-history (20 x 10 elements, two continuation stages) differs from the direct path's by
-3.1e-7 / 1.1e-6 / 2.9e-5 / 5.0e-5 at most. 1e-6 takes 30 % fewer transposed
-iterations than 1e-8 with the gradient at most 2e-5 off at every mesh
-measured; 1e-5 would take a fifth fewer again at 1e-4. ``tofsi check-gradients`` reads
-the same figures at 1e-6 and 1e-8 (central differences 4.05e-5 off on the
-coarse mesh either way: the differences' own error). A caller that needs the
+parts several times its size). What MMA needs is read from whole
+optimizations against the direct path's (beam scene, 40 x 20, 60 iterations
+over three continuation stages): at 1e-8 / 1e-6 / 1e-5 the final objective
+differs by 8.7e-8 / 5.7e-6 / 7.4e-5 relative and the final design by 3e-6 /
+3.6e-4 / 2.7e-3 at most, against the stopping rule's design change
+``optimizer.tol_change`` (2e-3): 1e-6 ends at the same design to five times
+below what the optimizer resolves, 1e-5 does not. So 1e-6: 30 % fewer
+transposed iterations than 1e-8, the gradient at most 2e-5 off at every
+mesh measured (a 14-iteration history on 20 x 10 elements 2.9e-5 off the
+direct one, 3.1e-7 at 1e-8). ``tofsi check-gradients`` on the iterative
+path reads Taylor rates 1.999-2.001 at 1e-6 as at 1e-8 (at 20 x 10 and 40 x
+20 elements; its central-difference row of the total is 3.7-4.3e-5 off at
+either tolerance, FAILED against its 1e-5 at 20 x 10 and inconclusive at
+40 x 20 before this change too: the differences' error, the gradient being
+1e-7 off the LU's at 1e-8). A caller that needs the
 gradient to the LU's precision sets :data:`TRANSPOSE_TOL` (1e-8: 1e-7 off)
 before the solvers are built.
 
