@@ -5,7 +5,10 @@ trial increments, one with every quad split 1-3 and one with 2-4, then each
 quad keeps the diagonal whose quad had the higher skewness (skewness is
 always measured on the quads). The motion is applied in increments on the
 updated mesh (see :mod:`movers.incremental`), because the torsional springs
-linearize the angle change (sin d(theta) ~ d(theta)).
+linearize the angle change (sin d(theta) ~ d(theta)): each at its start as
+the paper does (``scheme = "euler"``, the path errs like 1/N), or at its
+midpoint extrapolated from the increment before (``scheme = "midpoint"``,
+like 1/N^2 for the same one solve per increment).
 
 Layered stiffening multiplies both the lineal and the torsional stiffness of
 a quad's triangles by the quad's factor.
