@@ -5,11 +5,14 @@ apply the structure's motion ``t`` in ``N`` equal steps ``d = t / N`` on the upd
 (:mod:`movers.incremental`), increment ``k`` solving
 
     A_k dx = [W (-K_k d_p) + S_c d]_f,  dx_p = d_p,   A_k = P_f (W K_k + S_c) P_f + P_p,
-    K_k = sum_e f_e K0_e(X + x_k),   x_(k+1) = x_k + dx.
+    K_k = sum_e f_e K0_e(X + y_k),   x_(k+1) = x_k + dx,
+
+``y_k = x_k + a (x_k - x_(k-1))`` the increment's stiffness point (``a = 0``: its start; the
+spring's ``scheme = "midpoint"``: ``a = 1/2``, :class:`movers.incremental.IncrementKernel`).
 
 :class:`SlabIncrementMover` does that with the serial mover's own element kernel
 (:class:`movers.incremental.IncrementKernel`) on the moving quads of the rank's slab only: each
-rank evaluates ``K0_e(X + x_k)`` of its quads, the right-hand side is the sum over ranks of the
+rank evaluates ``K0_e(X + y_k)`` of its quads, the right-hand side is the sum over ranks of the
 slabs' products, and ``A_k`` is assembled by the slabs into a distributed AIJ matrix
 (:class:`~tofsi.parallel.slab_matrix.SlabMatrix`, one per increment) solved by GMRES to
 ``1e-3 linear_tol`` preconditioned by MUMPS factors of increment ``k``'s system in an earlier move
@@ -39,6 +42,7 @@ import numpy as np
 
 from movers.base import MoveReport, element_apply, quality_record
 from movers.increment_solvers import KEPT_FACTORS_TOL_RATIO
+from movers.incremental import stiffness_points
 from movers.spring_kernel import DIAGONALS
 from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
@@ -74,7 +78,8 @@ class SlabIncrementMover(SlabMover):
 
     # ---- one increment ----------------------------------------------------------------------
     def system(self, d: SlabDesign, kernel, x: np.ndarray, step: np.ndarray, matrix) -> tuple[np.ndarray, np.ndarray]:
-        """Assemble increment's ``A`` at ``x`` (2n,) into ``matrix``; returns its right-hand side
+        """Assemble an increment's ``A`` with the stiffness at ``x`` (2n,, its stiffness point)
+        into ``matrix``; returns its right-hand side
         ``[W (-K d_p) + S_c d]_f, d_p`` and the slab's unscaled element matrices ``K0 (E_r, 8, 8)``."""
         Xe = d.slab.points[self.quads] + x.reshape(-1, 2)[self.quads]
         K0 = kernel(Xe)
@@ -86,9 +91,9 @@ class SlabIncrementMover(SlabMover):
         matrix.assemble(self.dofs, Ke * d.weight[self.dofs][:, :, None], d.diag)
         return rhs, K0
 
-    def increment(self, d, kernel, x, step, matrix, rtol) -> np.ndarray:
-        """The change ``dx`` (2n,) of one increment from ``x`` towards ``x + step``."""
-        rhs, _ = self.system(d, kernel, x, step, matrix)
+    def increment(self, d, kernel, at, step, matrix, rtol) -> np.ndarray:
+        """The change ``dx`` (2n,) of one increment by ``step``, its stiffness at ``at`` (2n,)."""
+        rhs, _ = self.system(d, kernel, at, step, matrix)
         dx = matrix.solve(rhs, rtol=rtol)
         dx[self.fixed] = step[self.fixed]                # exact, whatever the solver's tolerance
         return dx
@@ -129,10 +134,11 @@ class SlabIncrementMover(SlabMover):
         kernel = self.kernel(codes)
         lin = SlabMoveLinearization(self, d, kernel, target, rho, next(self.tokens))
         x = np.zeros_like(target)
-        states = [x]
+        states, dx, a = [x], None, kernel.extrapolation
         for k in range(self.n):
+            at = x + a * dx if a and dx is not None else x
             try:
-                dx = self.increment(d, kernel, x, step, self.matrices[k], self.rtol)
+                dx = self.increment(d, kernel, at, step, self.matrices[k], self.rtol)
             except NumericalError as err:
                 report.message = str(err)
                 raise NumericalError(f"{report.mover} mover (by slabs): {err} at increment {k + 1} of {self.n}",
@@ -210,10 +216,11 @@ class SlabIncrements:
         self.edge = np.flatnonzero(m.is_fixed[m.dofs].any(axis=1))
         self.dofs_edge = m.dofs[self.edge]
         self.dx, self.forces, self.WK_edge, self.WD, self.Kdx = [], [], [], [], []
-        self.factored = [False] * m.n
-        for k in range(m.n):
-            x_k, dx = lin.states[k], lin.states[k + 1] - lin.states[k]
-            Xe = d.slab.points[m.quads] + x_k.reshape(-1, 2)[m.quads]
+        self.a = lin.kernel.extrapolation
+        self.points = stiffness_points(lin.states, self.a)             # y_k
+        for k, y_k in enumerate(self.points):
+            dx = lin.states[k + 1] - lin.states[k]
+            Xe = d.slab.points[m.quads] + y_k.reshape(-1, 2)[m.quads]
             K0 = lin.kernel(Xe)
             dx_e = dx[m.dofs]
             forces = np.einsum("eab,eb->ea", K0, dx_e)
@@ -230,7 +237,7 @@ class SlabIncrements:
         m, lin = self.m, self.lin
         matrix = m.matrices[k]
         if m.owners[k] != lin.token:
-            m.system(self.d, lin.kernel, lin.states[k], lin.target / m.n, matrix)
+            m.system(self.d, lin.kernel, self.points[k], lin.target / m.n, matrix)
             m.owners[k] = lin.token
         return matrix.solve(b, transpose=transpose)        # exact: refactorized unless fresh
 
@@ -251,17 +258,18 @@ class SlabIncrements:
         step = np.asarray(t_dot, dtype=float).reshape(-1) / m.n
         step_p = np.where(m.is_fixed, step, 0.0)
         moved = bool(np.any(step_p))
-        x_dot = np.zeros_like(step)
+        a = self.a
+        x_dot = x_dot_before = np.zeros_like(step)
         for k in range(m.n):
             rhs = d.diag * step                                        # S_c d_dot
             if moved:
                 rhs -= self.edge_apply(k, step_p)
-            if self.WD[k] is not None:
-                rhs -= self.shape_apply(k, x_dot)
+            if self.WD[k] is not None:                   # y_dot_k = x_dot_k + a (x_dot_k - x_dot_(k-1))
+                rhs -= self.shape_apply(k, x_dot + a * (x_dot - x_dot_before) if a else x_dot)
             rhs[m.fixed] = step[m.fixed]
             dx = self.solve(k, rhs, False)
             dx[m.fixed] = step[m.fixed]
-            x_dot = x_dot + dx
+            x_dot_before, x_dot = x_dot, x_dot + dx
         return x_dot
 
     def vjp(self, x_bar: np.ndarray):
@@ -272,6 +280,7 @@ class SlabIncrements:
         step_bar = np.zeros_like(x_bar)
         f_slab = np.zeros(len(m.quads))
         s_bar = np.zeros(x_bar.size // 2)
+        a, carry = self.a, 0.0                           # carry: increment k+1's share of x_k's adjoint
         for k in range(m.n - 1, -1, -1):
             b = x_bar.copy()
             b[m.fixed] = 0.0
@@ -283,8 +292,12 @@ class SlabIncrements:
                 step_bar -= t_blend
                 s_bar -= s_part
             f_slab -= np.einsum("ea,ea->e", (d.weight * lam)[m.dofs], self.forces[k])
-            if self.WD[k] is not None:                   # d/dx_k [(W lam) . f K0(x_k) dx]
-                x_bar = x_bar - self.shape_apply(k, lam, transpose=True)
+            y_bar = None if self.WD[k] is None else -self.shape_apply(k, lam, transpose=True)  # d/dy_k [...]
+            if a:                                        # y_k = (1 + a) x_k - a x_(k-1)
+                x_bar = x_bar + carry + ((1 + a) * y_bar if y_bar is not None else 0.0)
+                carry = 0.0 if y_bar is None else -a * y_bar
+            elif y_bar is not None:
+                x_bar = x_bar + y_bar
         f_bar = np.zeros(len(m.motion.base.quads))
         f_bar[m.local] = f_slab
         return step_bar / m.n, m.allsum(f_bar), s_bar
