@@ -152,7 +152,7 @@ def test_when_the_direct_attempt_and_the_ramp_fail_the_full_inflow_is_tried_with
     one_way = State(rho, {"w": np.ones(4), "u": np.ones(2), "x": None})
     calls = []
 
-    def solve(params, guess, rho, direct=False):
+    def solve(params, guess, rho, direct=False, tol=None):
         calls.append((params.load, direct))
         if direct or params.load < 1.0:
             raise NumericalError("does not converge", {})
@@ -163,7 +163,7 @@ def test_when_the_direct_attempt_and_the_ramp_fail_the_full_inflow_is_tried_with
     assert state.reports["load_ramp"]["own_continuation"]
     assert "load continuation stopped at 0 of the inflow" in state.reports["load_ramp"]["ramp_failure"]
 
-    def never(params, guess, rho, direct=False):
+    def never(params, guess, rho, direct=False, tol=None):
         raise NumericalError(f"fails at {params.load} ({'direct' if direct else 'own continuation'})", {})
 
     with pytest.raises(NumericalError, match="load continuation stopped") as failed:

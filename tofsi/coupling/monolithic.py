@@ -58,12 +58,13 @@ class CoupledLinearization:
         return self.solver.solve_transpose(self.matrix(), b)
 
 
-def solve_monolithic(system, comp, fields, state, direct: bool = False) -> None:
+def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: float | None = None) -> None:
     """Solve the cycle ``comp`` of the block ``system`` in place: ``fields`` (a guess, or none:
-    one sweep first, ``direct``: without the blocks' own continuation) become the solution, and
-    ``state`` receives the blocks' linearizations, the cycle's :class:`CoupledLinearization`
-    and the report ``"coupling"``."""
+    one sweep first, ``direct``: without the blocks' own continuation) become the solution (to
+    the largest scaled residual ``tol``, default the settings'), and ``state`` receives the
+    blocks' linearizations, the cycle's :class:`CoupledLinearization` and the report ``"coupling"``."""
     s = system.settings
+    tol = s.tol if tol is None else tol
     rho, params = state.rho, state.params
     system.start(comp, fields, state, direct=direct)
     solver = system.linear_solver(comp)
@@ -89,10 +90,10 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False) -> None:
         history.append({"iteration": it, **dict(zip(comp, norms, strict=True))})
         log.info("monolithic Newton %d: scaled residuals %s", it,
                  ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms, strict=True)))
-        if max(norms) <= s.tol:
+        if max(norms) <= tol:
             state.linearizations.update(lins)
             state.coupled[comp] = CoupledLinearization(system, comp, lins, solver)
-            state.reports["coupling"] = {"method": "monolithic", "history": history}
+            state.reports["coupling"] = {"method": "monolithic", "history": history, "tol": tol}
             return
         if it == s.max_iter:
             break
@@ -111,7 +112,7 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False) -> None:
             kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
                     for o in getattr(b, "slow_couplings", ()) if o in comp}
         b = -np.concatenate(R)
-        eta = forcing_term(merits, s.tol)           # inexact Newton
+        eta = forcing_term(merits, tol)           # inexact Newton
         found, solver = newton_step(system, comp, lins, kept, b, eta, solver, fields, merit, max(norms),
                                     history)
         if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
