@@ -175,7 +175,11 @@ def refactor_small_blocks(solver, J: BlockMatrix, history: list) -> None:
     the structure's and the mesh's tangents move most there, the flow's factors are kept)."""
     pre = solver.solver
     if isinstance(pre, BlockGaussSeidel) and not solver.stale and pre.shape == J.shape:
-        blocks = pre.refactor_small_blocks(J)
+        try:
+            blocks = pre.refactor_small_blocks(J)
+        except NumericalError:          # its released factors are gone: a whole new one (or its failure)
+            solver.refresh(J)
+            return
         history[-1]["small_blocks_refactorized"] = True
         log.info("monolithic Newton %d: the preconditioner's blocks %s factorized at this iterate",
                  len(history) - 1, blocks)

@@ -85,13 +85,15 @@ class BlockGaussSeidel:
         small fields' tangents change most from one iterate to the next (a finite-strain structure,
         a hyperelastic mover) while the largest, dearest one changes little: the large scene's step
         to its full inflow at 80 x 40 took GMRES 9 iterations per decade with the first iterate's
-        factors, 2-4 with the small blocks' refactorized (6642 unknowns each, against 29403)."""
+        factors, 2-4 with the small blocks' refactorized (6642 unknowns each, against 29403). A
+        failed factorization leaves the preconditioner unusable (its old factors released first)."""
         if not isinstance(A, BlockMatrix) or A.sizes != self.A.sizes:
             raise ValueError("refactor_small_blocks needs a block matrix of the preconditioner's block sizes")
         largest = max(A.sizes)
         small = [i for i, size in enumerate(A.sizes) if size < largest]
-        for i in small:
+        for i in small:                     # the old factors released first (their memory reused)
             self.memory_bytes -= self.diagonal[i].memory_bytes
+            self.diagonal[i] = self._solve[i] = self._solve_t[i] = None
             self.diagonal[i] = self.direct(canonical_csr(A.blocks[(i, i)]), perm=self.orderings[i])
             self.memory_bytes += self.diagonal[i].memory_bytes
             self._solve[i] = self.diagonal[i].preconditioner(False)
