@@ -1,14 +1,19 @@
 """``solver.linear_solver = "iterative"``: gradients and optimizations without an LU.
 
 Stated tolerances: the flow's Newton converges to the scene's tolerance with
-GMRES steps, the adjoint's transposed GMRES to 1e-8 relative; the
-objective then equals the direct path's to 1e-8 and its gradient to 1e-6
-relative (measured 9.2e-10 and 1.2e-7 at 800 elements on 2026-11-27; 1.1e-9
-and 6.8e-8 with the AMG's symmetric Gauss-Seidel sweeps, 1.7e-6 -- failing --
-with the adjoint to 1e-7: the compliance gradient is a difference of flow and
-structure parts 4-7 times its size at 90 x 45), the Taylor test of the
-iterative gradient passes (rate > 1.9), and a 14-iteration optimization's
-objective history equals the direct path's to 1e-5 relative.
+GMRES steps, the adjoint's transposed GMRES to ``TRANSPOSE_TOL`` (1e-6, what
+the gradient needs: ``tofsi.linalg.iterative``'s docstring); the objective
+then equals the direct path's to 1e-8 and its gradient to 1e-4 relative
+(measured 9.2e-10 and 1.9e-5 at 800 elements on 2026-11-27: the compliance
+gradient is a difference of flow and structure parts several times its size,
+so its error is 10-20 times the adjoint's residual on this mesh), and to
+1e-6 with the adjoint asked for 1e-8 (measured 1.2e-7); the Taylor test of
+the iterative gradient passes (rate > 1.9), and a 14-iteration
+optimization's objective history equals the direct path's to 1e-4 relative
+(measured 2.9e-5; 3.1e-7 with the adjoint to 1e-8), and (slow) a
+60-iteration one over three stages ends at the direct path's design to half
+the optimizer's stopping change ``optimizer.tol_change`` (measured 3.6e-4
+against 1e-3; 2.7e-3 with the adjoint to 1e-5: why 1e-6).
 """
 
 import numpy as np
@@ -17,6 +22,7 @@ import pytest
 import tofsi
 from adjoint.checks import taylor_test
 from tofsi.linalg import AMGSolver
+from tofsi.linalg import iterative as iterative_module
 from tofsi.linalg.iterative import BlockSaddlePreconditioner
 from tofsi.optimization.optimize import Optimizer
 
@@ -42,12 +48,17 @@ def test_the_model_solves_without_an_lu():
     assert not isinstance(D.model.flow.newton_solve(None, rho).solver.solver, BlockSaddlePreconditioner)
 
 
-def test_objective_and_gradient_equal_the_direct_path():
+@pytest.mark.parametrize("transpose_tol, gradient_tol", [(None, 1e-4), (1e-8, 1e-6)])
+def test_objective_and_gradient_equal_the_direct_path(transpose_tol, gradient_tol, monkeypatch):
+    """At the default adjoint tolerance, and with a tighter one asked for (``TRANSPOSE_TOL``; the
+    default's gradient, 1.9e-5 off, fails the tighter bound, so the request is seen)."""
+    if transpose_tol is not None:
+        monkeypatch.setattr(iterative_module, "TRANSPOSE_TOL", transpose_tol)
     gamma = np.random.default_rng(0).uniform(0.05, 0.95, problem().n_design)
     f_it, g_it = problem(*ITERATIVE).evaluate(gamma)
     f_lu, g_lu = problem().evaluate(gamma)
     assert abs(f_it - f_lu) <= 1e-8 * abs(f_lu)
-    assert np.linalg.norm(g_it - g_lu) <= 1e-6 * np.linalg.norm(g_lu)
+    assert np.linalg.norm(g_it - g_lu) <= gradient_tol * np.linalg.norm(g_lu)
 
 
 @pytest.mark.parametrize("objective", ["compliance", "dissipation"])
@@ -63,7 +74,7 @@ def test_taylor_test_passes_on_the_iterative_path(objective):
 
 def test_an_optimization_history_matches_the_direct_path(tmp_path):
     """14 MMA iterations over two continuation stages on the coarse mesh: the objective
-    histories agree to 1e-5 relative (the iterative solves' tolerance carried through MMA)."""
+    histories agree to 1e-4 relative (the iterative solves' tolerances carried through MMA)."""
     tiny = ["mesh.h_min=0.1", "mesh.h_max=0.1", "design.filter_radius=0.25", "optimizer.max_iter=14",
             "design.stage_iterations=6"]
     histories = []
@@ -73,4 +84,22 @@ def test_an_optimization_history_matches_the_direct_path(tmp_path):
         histories.append(np.array([row.objective for row in opt.history]))
     direct, iterative = histories
     assert direct.size == iterative.size >= 10
-    assert np.max(np.abs(iterative - direct) / np.abs(direct)) <= 1e-5
+    assert np.max(np.abs(iterative - direct) / np.abs(direct)) <= 1e-4
+
+
+@pytest.mark.slow
+def test_a_whole_optimization_ends_at_the_direct_paths_design(tmp_path):
+    """60 MMA iterations over three continuation stages at 40 x 20: the final design within half
+    of ``optimizer.tol_change`` (the change the optimizer stops on) of the direct path's, the
+    final objective to 1e-4 (measured 3.6e-4 and 5.7e-6 at the adjoint's 1e-6)."""
+    settings = [*COARSE, "optimizer.max_iter=60", "design.stage_iterations=20"]
+    designs, objectives = [], []
+    for name, extra in (("direct", []), ("iterative", ITERATIVE)):
+        problem_ = tofsi.Problem(load("beam_in_channel_optimization", *settings, *extra))
+        opt = Optimizer(problem_, tmp_path / name)
+        opt.run()
+        designs.append(np.load(tmp_path / name / "design.npy"))
+        objectives.append(opt.history[-1].objective)
+    assert len(opt.history) == 60
+    assert np.max(np.abs(designs[1] - designs[0])) <= 0.5 * problem_.scene.optimizer.tol_change
+    assert abs(objectives[1] - objectives[0]) <= 1e-4 * abs(objectives[0])

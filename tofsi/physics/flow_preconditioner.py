@@ -44,8 +44,9 @@ def schur_parts(flow, x=None, rho=None, params=None) -> tuple[np.ndarray, np.nda
 
 
 def flow_preconditioner(flow, A, x=None, rho=None, params=None, pressure_solver: str = "amg",
-                        tol: float = 1e-10) -> BlockSaddlePreconditioner:
-    """The block preconditioner (and FGMRES) of the constrained flow Jacobian ``A`` at ``(x, rho)``."""
+                        tol: float = 1e-10, transpose_tol: float | None = None) -> BlockSaddlePreconditioner:
+    """The block preconditioner (and GMRES) of the constrained flow Jacobian ``A`` at ``(x, rho)``
+    (``transpose_tol`` None: the adjoint's :data:`tofsi.linalg.iterative.TRANSPOSE_TOL`)."""
     mass, weights = schur_parts(flow, x, rho, params)
     return BlockSaddlePreconditioner(A, flow.n_velocity, mass, weights, flow.bc.is_fixed,
-                                     pressure_solver=pressure_solver, tol=tol)
+                                     pressure_solver=pressure_solver, tol=tol, transpose_tol=transpose_tol)
