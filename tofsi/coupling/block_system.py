@@ -218,11 +218,12 @@ class BlockSystem:
 
     # ---- forward solve ------------------------------------------------------------------
     def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,
-              progress=None, direct: bool = False, tol: float | None = None) -> State:
+              progress=None, direct: bool = False, tol: float | None = None, load_step: bool = False) -> State:
         """Every field for densities ``rho``; ``guess`` (a state) warm-starts the solvers;
         ``direct``: the blocks' own solves without their own continuation (``FieldBlock.solve``),
         for a caller that continues along a path of its own when this fails; ``tol``: the
-        cycles' tolerance instead of the settings' (a continuation's step short of its end)."""
+        cycles' tolerance instead of the settings' (a continuation's step short of its end);
+        ``load_step``: a step of the inflow ramp (:func:`~tofsi.coupling.monolithic.solve_monolithic`)."""
         fields = {name: None for name in self.names}
         if guess is not None:
             for name in self.names:
@@ -233,7 +234,7 @@ class BlockSystem:
             if len(comp) == 1:
                 fields[comp[0]] = self._solve_block(comp[0], fields, state, progress, direct=direct)
             elif self.method_for(comp) == "monolithic":
-                solve_monolithic(self, comp, fields, state, direct, tol)
+                solve_monolithic(self, comp, fields, state, direct, tol, load_step)
             else:
                 self._partitioned(comp, fields, state, progress, direct, tol)
         state.fields = fields

@@ -42,13 +42,16 @@ a structure stiff enough to need no ramp converges by that Newton alone. The pat
   structure and the mesh start where the last step left them (their secant
   inverts elements there).
 
-Each step starts from the last converged one. A step short of the path's end
-is solved only to ``STEP_TOL`` (the largest scaled residual of the coupled
-Newton, not the problem's ``coupled.tol``): its state is the next step's start
-and nothing else, and the Newton's last, quadratic steps to 1e-9 there were
-thrown away (the large scene's step to half its inflow at 80 x 40: 4 Newton
+Each step starts from the last converged one. A step of the inflow ramp short
+of its end is solved only to ``STEP_TOL`` (the largest scaled residual of the
+coupled Newton, not the problem's ``coupled.tol``): its state is the next step's
+start and nothing else, and the Newton's last, quadratic steps to 1e-9 there
+were thrown away (the large scene's step to half its inflow at 80 x 40: 4 Newton
 steps, not 9; the step to the full inflow from there takes as many as before,
-benchmarks/README.md). A converged step grows the
+benchmarks/README.md); the ramp's steps are solved as load steps
+(``load_step``: :mod:`tofsi.coupling.monolithic` refactorizes the preconditioner's
+small blocks far from the solution). The densities' steps are solved as design
+changes, each to the problem's tolerance. A converged step grows the
 next by ``GROWTH``, a failed one is cut back to half, down to
 ``coupled.min_load_step`` (the inflow) or ``MIN_DENSITY_STEP`` (the
 densities). Steps and cutbacks go to the state's report (``load_ramp`` or
@@ -78,7 +81,7 @@ MIN_DENSITY_STEP = 0.25    # the densities' smallest step: a trial design the pa
 GROWTH = 1.5               # a converged step's successor is this much longer (at most to the end)
 STEP_TOL = 1e-2            # the largest scaled residual a step short of the path's end is solved to
 
-Solve = Callable[..., State]      # (params, guess, rho, direct=False, tol=None) -> State
+Solve = Callable[..., State]      # (params, guess, rho, direct=False, tol=None, load_step=False) -> State
 
 
 def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: float, rho: np.ndarray,
@@ -100,7 +103,7 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
         log.info("coupled solve failed from the previous design's state (%s); continuing in the densities "
                  "from that design's", first_failure)
         rho0 = np.asarray(guess.rho, dtype=float)
-        state, report = _continue(lambda t, start, tol: solve(params, start, (1.0 - t) * rho0 + t * rho, tol=tol),
+        state, report = _continue(lambda t, start, tol: solve(params, start, (1.0 - t) * rho0 + t * rho),
                                   guess, FIRST_DENSITY_STEP, MIN_DENSITY_STEP,
                                   "continuation in the densities from the previous design's")
         state.reports["density_ramp"] = {**report, "full_load_failure": first_failure}
@@ -108,7 +111,7 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
     log.info("coupled solve failed at the full load (%s); ramping the inflow from rest", first_failure)
     try:
         state, report = _continue(lambda t, start, tol: solve(dataclasses.replace(params, load=params.load * t),
-                                                               start, rho, tol=tol),
+                                                               start, rho, tol=tol, load_step=True),
                                   None, FIRST_STEP, min_step, "inflow ramp",
                                   predict=lambda path, t: secant(path, t, inflow_fields))
     except NumericalError as err:
@@ -177,8 +180,9 @@ def _solved_elsewhere(guess: State | None, fields, rho) -> bool:
 def _continue(step_solve, start: State | None, first: float, min_step: float, what: str, predict=None):
     """Solve ``step_solve(t, start, tol)`` for ``t`` from 0 (``start``, which may be None: rest) to 1
     in adaptive steps, each from the last converged state (``predict(path, t)``: from the states so
-    far, ``[(t_k, state)]``), those short of 1 to ``tol = STEP_TOL`` (at 1: None, the problem's own
-    tolerance); ``(state at t = 1, {"steps", "cutbacks"})`` or a NumericalError whose
+    far, ``[(t_k, state)]``), those short of 1 with ``tol = STEP_TOL`` (at 1: None, the problem's own
+    tolerance; ``step_solve`` may ignore it); ``(state at t = 1, {"steps", "cutbacks"})`` or a
+    NumericalError whose
     diagnostic says how far it got (``reached``, ``failed``, ``step``, ``steps``, ``cutbacks``) and
     whose cause is the failed step's error."""
     steps, cutbacks = [], 0
