@@ -29,6 +29,7 @@ from movers.blend import Blend, node_scale
 from movers.failure import at
 from tofsi.mesh import quality
 from tofsi.core.errors import NumericalError
+from tofsi.core.kept import Kept, input_key
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import derivative
 from tofsi.linalg import LinearAlgebra, RecyclingSolver
@@ -132,6 +133,7 @@ class Mover(ABC):
 
     def __init__(self, params):
         self.params = params
+        self.kept_scale = Kept()        # the blend's node scale, keyed by the mesh and the params
 
     @abstractmethod
     def move(self, problem: MotionProblem, prescribed: np.ndarray,
@@ -183,7 +185,8 @@ class Mover(ABC):
         """The :class:`~movers.blend.Blend` of a density-blended problem (None otherwise)."""
         if problem.blend is None:
             return None
-        c = node_scale(self.reference_matrices(problem), problem.dofs, problem.n_nodes)
+        c = self.kept_scale.get(input_key(problem.points, problem.quads, self.params),
+                                lambda: node_scale(self.reference_matrices(problem), problem.dofs, problem.n_nodes))
         return Blend.build(np.asarray(problem.blend, float), c, problem.bc.is_fixed)
 
     def residual(self, problem: MotionProblem, x: np.ndarray, target: np.ndarray, blend=None,

@@ -1,7 +1,7 @@
 """``solver.linear_solver = "iterative"``: gradients and optimizations without an LU.
 
 Stated tolerances: the flow's Newton converges to the scene's tolerance with
-GMRES steps, the adjoint's transposed GMRES to ``TRANSPOSE_TOL`` (1e-6, what
+GMRES steps, the adjoint's transposed GMRES to ``solver.adjoint_tol`` (1e-6, what
 the gradient needs: ``tofsi.linalg.iterative``'s docstring); the objective
 then equals the direct path's to 1e-8 and its gradient to 1e-4 relative
 (measured 9.2e-10 and 1.9e-5 at 800 elements on 2026-11-27: the compliance
@@ -22,7 +22,6 @@ import pytest
 import tofsi
 from adjoint.checks import taylor_test
 from tofsi.linalg import AMGSolver
-from tofsi.linalg import iterative as iterative_module
 from tofsi.linalg.iterative import BlockSaddlePreconditioner
 from tofsi.optimization.optimize import Optimizer
 
@@ -48,14 +47,13 @@ def test_the_model_solves_without_an_lu():
     assert not isinstance(D.model.flow.newton_solve(None, rho).solver.solver, BlockSaddlePreconditioner)
 
 
-@pytest.mark.parametrize("transpose_tol, gradient_tol", [(None, 1e-4), (1e-8, 1e-6)])
-def test_objective_and_gradient_equal_the_direct_path(transpose_tol, gradient_tol, monkeypatch):
-    """At the default adjoint tolerance, and with a tighter one asked for (``TRANSPOSE_TOL``; the
-    default's gradient, 1.9e-5 off, fails the tighter bound, so the request is seen)."""
-    if transpose_tol is not None:
-        monkeypatch.setattr(iterative_module, "TRANSPOSE_TOL", transpose_tol)
+@pytest.mark.parametrize("adjoint_tol, gradient_tol", [(None, 1e-4), (1e-8, 1e-6)])
+def test_objective_and_gradient_equal_the_direct_path(adjoint_tol, gradient_tol):
+    """At the default adjoint tolerance, and with a tighter one asked for (``solver.adjoint_tol``;
+    the default's gradient, 1.9e-5 off, fails the tighter bound, so the request is seen)."""
+    asked = [] if adjoint_tol is None else [f"solver.adjoint_tol={adjoint_tol}"]
     gamma = np.random.default_rng(0).uniform(0.05, 0.95, problem().n_design)
-    f_it, g_it = problem(*ITERATIVE).evaluate(gamma)
+    f_it, g_it = problem(*ITERATIVE, *asked).evaluate(gamma)
     f_lu, g_lu = problem().evaluate(gamma)
     assert abs(f_it - f_lu) <= 1e-8 * abs(f_lu)
     assert np.linalg.norm(g_it - g_lu) <= gradient_tol * np.linalg.norm(g_lu)

@@ -21,7 +21,9 @@ CASES = [("yeoh", {"A20": 50.0, "kappa": 2.0, "newton_tol": 1e-13}),
          ("linear", {"increments": 3, "chi": 0.6}),
          ("spring", {"increments": 1, "diagonals": "1-3"}),
          ("spring", {"increments": 4, "diagonals": "both"}),
-         ("spring", {"increments": 3, "diagonals": "selective"})]
+         ("spring", {"increments": 3, "diagonals": "selective"}),
+         ("spring", {"increments": 4, "diagonals": "both", "scheme": "midpoint"}),
+         ("spring", {"increments": 3, "diagonals": "selective", "scheme": "midpoint"})]
 
 
 def setup_problem(blended: bool):

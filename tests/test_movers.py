@@ -84,6 +84,24 @@ def test_spring_mover_approaches_the_rigid_rotation_at_first_order(diagonals):
     assert err[0] > 1e-6 and np.all(np.abs(rates - 1.0) < 0.1), (err, rates)
 
 
+@pytest.mark.parametrize("diagonals", ["1-3", "both"])
+def test_spring_mover_with_midpoint_stiffness_approaches_the_rigid_rotation_at_second_order(diagonals):
+    """Each increment's stiffness at its midpoint extrapolated from the increment before: the
+    error of the rigid rotation falls like 1/N^2 (doubling N quarters it), and 4 such increments
+    are nearer the rotation than 10 at each increment's start (the large scene's trade)."""
+    mesh, problem = _annulus_like()
+    u = rotation(mesh.points, 40.0)
+
+    def error(n, scheme):
+        return np.abs(movers.create("spring", increments=n, diagonals=diagonals, scheme=scheme)
+                      .move(problem, u).displacement - u).max()
+
+    err = [error(n, "midpoint") for n in (8, 16, 32)]
+    rates = np.log2(np.array(err[:-1]) / err[1:])
+    assert err[0] > 1e-8 and np.all(np.abs(rates - 2.0) < 0.1), (err, rates)
+    assert error(4, "midpoint") < error(10, "euler")
+
+
 @pytest.mark.parametrize("chi", [0.0, 1.0, 1.7])
 def test_elastic_kernel_matches_the_slow_oracle(chi):
     rng = np.random.default_rng(9)

@@ -211,11 +211,12 @@ class MoveLinearization(ExplicitLinearization):
     def coupling(self, other):
         if other != "u":
             return None
-        motion, result, size, vjp = self.block.motion, self.result, self.block.size, self.vjp
+        motion, result, size = self.block.motion, self.result, self.block.size
         # the map's products must not reach back to this linearization (a cycle would leave the
         # move's stored increments, factorizations included, to the cyclic garbage collector)
         return self.kept("D_u", lambda: LinearMap(
-            (size, size), lambda v: -motion.jvp(result, v), lambda w: -vjp(w)[0]["u"]))
+            (size, size), lambda v: -motion.jvp(result, v),
+            lambda w: -motion.structure_vjp(result, np.asarray(w).reshape(-1, 2))))
 
 
 class MotionBlock(FieldBlock):

@@ -17,6 +17,8 @@ import os
 from contextlib import contextmanager
 from dataclasses import dataclass
 
+from tofsi.linalg.iterative import TRANSPOSE_TOL
+
 log = logging.getLogger(__name__)
 ITERATIVE = "iterative"          # the value of solver.linear_solver that selects the iterative path
 
@@ -46,12 +48,14 @@ class LinearAlgebra:
     OpenBLAS threads while the model computes (0: as the environment says); iterative : the
     iterative path (``linear_solver = "iterative"``): the flow by block-preconditioned FGMRES,
     the structure and the movers by AMG-CG; ``backend`` is then the direct backend of what
-    stays direct (the coupled block systems' diagonal blocks)."""
+    stays direct (the coupled block systems' diagonal blocks); adjoint_tol : the iterative
+    path's tolerance of the flow's transposed solves (``solver.adjoint_tol``)."""
 
     backend: str = "superlu"
     threads: int = 0
     blas_threads: int = 0
     iterative: bool = False
+    adjoint_tol: float = TRANSPOSE_TOL
 
     @classmethod
     def from_settings(cls, settings) -> "LinearAlgebra":
@@ -61,7 +65,8 @@ class LinearAlgebra:
         from tofsi.linalg.backends import requested, resolve
         name = requested(settings.linear_solver)
         return cls(resolve(name), solver_threads(settings.threads),
-                   environment_int("TOFSI_BLAS_THREADS", settings.blas_threads), iterative=name == ITERATIVE)
+                   environment_int("TOFSI_BLAS_THREADS", settings.blas_threads), iterative=name == ITERATIVE,
+                   adjoint_tol=settings.adjoint_tol)
 
     @classmethod
     def default(cls) -> "LinearAlgebra":

@@ -72,14 +72,11 @@ differs by 8.7e-8 / 5.7e-6 / 7.4e-5 relative and the final design by 3e-6 /
 below what the optimizer resolves, 1e-5 does not. So 1e-6: 30 % fewer
 transposed iterations than 1e-8, the gradient at most 2e-5 off at every
 mesh measured (a 14-iteration history on 20 x 10 elements 2.9e-5 off the
-direct one, 3.1e-7 at 1e-8). ``tofsi check-gradients`` on the iterative
-path reads Taylor rates 1.999-2.001 at 1e-6 as at 1e-8 (at 20 x 10 and 40 x
-20 elements; its central-difference row of the total is 3.7-4.3e-5 off at
-either tolerance, FAILED against its 1e-5 at 20 x 10 and inconclusive at
-40 x 20 before this change too: the differences' error, the gradient being
-1e-7 off the LU's at 1e-8). A caller that needs the
-gradient to the LU's precision sets :data:`TRANSPOSE_TOL` (1e-8: 1e-7 off)
-before the solvers are built.
+direct one, 3.1e-7 at 1e-8). The Taylor rates of the total gradient are
+1.999-2.001 at 1e-6 as at 1e-8 (20 x 10 and 40 x 20 elements). A scene that
+needs the gradient to the LU's precision sets ``solver.adjoint_tol`` (1e-8:
+1e-7 off); ``tofsi check-gradients`` asks for 1e-10 and a tighter flow Newton
+(:func:`tofsi.commands.check_gradients.checked_scene`).
 
 :class:`BlockSaddlePreconditioner` has the interface of
 :class:`tofsi.linalg.AMGSolver` (``exact = False``, :meth:`preconditioner`,
@@ -146,7 +143,7 @@ class BlockSaddlePreconditioner:
     fixed : ``(n,)`` bool, the Dirichlet dofs (identity rows and columns of ``A``)
     pressure_solver : ``amg`` (a V-cycle on ``L_alpha``) or ``direct`` (its sparse LU)
     tol, transpose_tol : GMRES tolerances (scaled relative residual) of the solves with ``J``
-        and with ``J^T`` (None: :data:`TRANSPOSE_TOL` as it is when the preconditioner is built)
+        and with ``J^T``
     """
 
     exact = False
@@ -157,12 +154,12 @@ class BlockSaddlePreconditioner:
 
     def __init__(self, A: sp.spmatrix, n_velocity: int, mass: np.ndarray, darcy_weights: np.ndarray | None,
                  fixed: np.ndarray, pressure_solver: str = "amg", tol: float = 1e-10,
-                 transpose_tol: float | None = None, max_iter: int = 400):
+                 transpose_tol: float = TRANSPOSE_TOL, max_iter: int = 400):
         if pressure_solver not in PRESSURE_SOLVERS:
             raise ValueError(f"pressure_solver {pressure_solver!r}: allowed {PRESSURE_SOLVERS}")
         nv = n_velocity
         self.shape, self.tol, self.max_iter = A.shape, tol, max_iter
-        self.transpose_tol = TRANSPOSE_TOL if transpose_tol is None else transpose_tol
+        self.transpose_tol = transpose_tol
         self.nv = nv
         self.iterations = 0
         self.fixed_p = np.flatnonzero(np.asarray(fixed)[nv:])

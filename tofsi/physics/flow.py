@@ -318,7 +318,8 @@ class Flow:
         (:mod:`tofsi.physics.flow_preconditioner`)."""
         x = None if x is None else np.array(x, dtype=float)
         rho = None if rho is None else np.array(rho, dtype=float)
-        return self.linear_algebra.saddle_point(self.factorize, lambda A: flow_preconditioner(self, A, x, rho, params))
+        return self.linear_algebra.saddle_point(self.factorize, lambda A: flow_preconditioner(
+            self, A, x, rho, params, transpose_tol=self.linear_algebra.adjoint_tol))
 
     def solve(self, x=None, rho=None, w0=None, params=None) -> tuple[np.ndarray, FlowReport]:
         """Steady flow on the mesh moved by ``x`` with densities ``rho``; raises on failure."""

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofsi.linalg.iterative import FLOOR, BlockSaddlePreconditioner
+from tofsi.linalg.iterative import FLOOR, TRANSPOSE_TOL, BlockSaddlePreconditioner
 
 
 def element_areas(corners: np.ndarray) -> np.ndarray:
@@ -44,9 +44,9 @@ def schur_parts(flow, x=None, rho=None, params=None) -> tuple[np.ndarray, np.nda
 
 
 def flow_preconditioner(flow, A, x=None, rho=None, params=None, pressure_solver: str = "amg",
-                        tol: float = 1e-10, transpose_tol: float | None = None) -> BlockSaddlePreconditioner:
+                        tol: float = 1e-10, transpose_tol: float = TRANSPOSE_TOL) -> BlockSaddlePreconditioner:
     """The block preconditioner (and GMRES) of the constrained flow Jacobian ``A`` at ``(x, rho)``
-    (``transpose_tol`` None: the adjoint's :data:`tofsi.linalg.iterative.TRANSPOSE_TOL`)."""
+    (``transpose_tol``: the adjoint's transposed solves, ``solver.adjoint_tol``)."""
     mass, weights = schur_parts(flow, x, rho, params)
     return BlockSaddlePreconditioner(A, flow.n_velocity, mass, weights, flow.bc.is_fixed,
                                      pressure_solver=pressure_solver, tol=tol, transpose_tol=transpose_tol)

@@ -188,6 +188,11 @@ class MeshMotion:
         t_bar, f_bar, s_bar = self.mover.vjp(result.problem, result, x_bar)
         return self.target_transpose(t_bar), self.density_transpose(rho, s_bar, f_bar)
 
+    def structure_vjp(self, result: MoveResult, x_bar) -> np.ndarray:
+        """``u_bar`` (2n,) alone for ``x_bar`` on the mesh displacement (the coupling ``dx/du``'s
+        transposed product: the densities' share, :meth:`density_transpose`, is not made)."""
+        return self.target_transpose(self.mover.vjp(result.problem, result, x_bar)[0])
+
     def jvp(self, result: MoveResult, u_dot) -> np.ndarray:
         """``x_dot`` (2n,) for a change ``u_dot`` of the structure's displacement, the densities
         held (path-dependent movers: the tangent sweep through the move ``result``)."""

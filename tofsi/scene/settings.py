@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from tofsi.core.config import option
 from tofsi.core.errors import InputError
 from tofsi.core.registry import MATERIALS, OBJECTIVES
+from tofsi.linalg.iterative import TRANSPOSE_TOL
 
 MAX_STIFFENING = 1e6
 """Largest stiffening factor of an element layer. Far beyond it a layer is rigid to round-off:
@@ -160,6 +161,12 @@ class SolverSettings:
     blas_threads: int = option(1, ge=0, le=4096,
                                doc="OpenBLAS threads of NumPy/SciPy (1: fastest measured here and "
                                    "robust on a shared machine; 0: leave as the environment says)")
+    adjoint_tol: float = option(TRANSPOSE_TOL, gt=0, lt=1e-2,
+                                doc="iterative path: relative tolerance (scaled residual) of the flow's "
+                                    "transposed GMRES, the adjoint's solve; 1e-6 leaves the gradient "
+                                    "about 1e-6-2e-5 off the LU's and the optimization at the direct "
+                                    "path's design (docs/parallel.md); tofsi check-gradients uses 1e-10. "
+                                    "The direct backends solve exactly")
     max_memory_gb: float = option(0.0, ge=0, doc="refuse a solve whose estimated memory exceeds "
                                                  "this [GB] (0: the machine's available memory)")
     flow_amg: str = option("hypre", choices=("hypre", "gamg"),
