@@ -52,6 +52,29 @@ def test_the_preconditioner_inverts_the_block_lower_triangle_exactly():
     assert np.linalg.norm(solver.preconditioner(True)(A.T @ x) - x) <= 1e-12 * np.linalg.norm(x)
 
 
+def test_refactorized_small_blocks_invert_a_new_block_lower_triangle_and_the_largest_is_kept():
+    """Built on one block lower-triangular matrix, refactorized (the blocks smaller than the
+    largest) from another with the same largest block: the sweep with the new matrix's couplings
+    inverts the new matrix exactly (M = A), the largest block's factors are the same object, and
+    without the refactorization it does not (teeth)."""
+    from tofsi.linalg import BlockMatrix
+    old = coupled_matrix(2.0, lower_only=True, seed=0)
+    new = coupled_matrix(2.0, lower_only=True, seed=3)
+    new = sp.bmat([[old[:40, :40], None], [new[40:, :40], new[40:, 40:]]], format="csr")  # the flow block kept
+    A_old, A_new = BlockMatrix.from_sparse(old, SIZES), BlockMatrix.from_sparse(new, SIZES)
+    x = np.random.default_rng(4).normal(size=new.shape[0])
+    solver = BlockGaussSeidel(A_old)
+    largest = solver.diagonal[0]
+    stale = solver.preconditioner(matrix=A_new)(new @ x)
+    assert np.linalg.norm(stale - x) > 1e-3 * np.linalg.norm(x)
+    assert solver.refactor_small_blocks(A_new) == [1, 2]
+    assert solver.diagonal[0] is largest
+    assert np.linalg.norm(solver.preconditioner(matrix=A_new)(new @ x) - x) <= 1e-12 * np.linalg.norm(x)
+    assert np.linalg.norm(solver.preconditioner(True, matrix=A_new.T)(new.T @ x) - x) <= 1e-12 * np.linalg.norm(x)
+    with pytest.raises(ValueError, match="block sizes"):
+        solver.refactor_small_blocks(BlockMatrix.from_sparse(old, (40, 15, 25)))
+
+
 def test_block_sizes_that_do_not_make_up_the_matrix_are_refused():
     with pytest.raises(ValueError, match="block sizes"):
         BlockGaussSeidel(coupled_matrix(0.5), (40, 25, 10))

@@ -152,7 +152,7 @@ def test_when_the_direct_attempt_and_the_ramp_fail_the_full_inflow_is_tried_with
     one_way = State(rho, {"w": np.ones(4), "u": np.ones(2), "x": None})
     calls = []
 
-    def solve(params, guess, rho, direct=False):
+    def solve(params, guess, rho, direct=False, tol=None, load_step=False):
         calls.append((params.load, direct))
         if direct or params.load < 1.0:
             raise NumericalError("does not converge", {})
@@ -163,9 +163,43 @@ def test_when_the_direct_attempt_and_the_ramp_fail_the_full_inflow_is_tried_with
     assert state.reports["load_ramp"]["own_continuation"]
     assert "load continuation stopped at 0 of the inflow" in state.reports["load_ramp"]["ramp_failure"]
 
-    def never(params, guess, rho, direct=False):
+    def never(params, guess, rho, direct=False, tol=None, load_step=False):
         raise NumericalError(f"fails at {params.load} ({'direct' if direct else 'own continuation'})", {})
 
     with pytest.raises(NumericalError, match="load continuation stopped") as failed:
         ramped(never, Continuation(), one_way, 0.5, rho, ("w", "u", "x"), ("w",))
     assert failed.value.diagnostic["own_continuation_failure"] == "fails at 1.0 (own continuation)"
+
+
+def test_a_ramp_step_short_of_the_end_is_solved_loosely_and_the_end_to_the_problems_tolerance():
+    """A stand-in that fails directly at the full inflow and at 0.5: the ramp's steps (0.25,
+    0.625, 1), load steps, ask for ``STEP_TOL`` below the end and for the problem's own
+    tolerance (None) at it; the densities' steps are design changes, each to the problem's."""
+    from tofsi.coupling.load_ramp import STEP_TOL, ramped
+    rho = np.ones(3)
+    one_way = State(rho, {"w": np.ones(4), "u": np.ones(2), "x": None})
+    calls = []
+
+    def solve(params, guess, rho, direct=False, tol=None, load_step=False):
+        calls.append((params.load, direct, tol))
+        assert load_step == (not direct)
+        if direct or params.load == 0.5:
+            raise NumericalError("does not converge", {})
+        return State(rho, {"w": np.ones(4), "u": np.ones(2), "x": np.ones(2)}, params, True)
+
+    state = ramped(solve, Continuation(), one_way, 0.1, rho, ("w", "u", "x"), ("w",))
+    assert state.reports["load_ramp"]["steps"] == [0.25, 0.625, 1.0]
+    assert calls == [(1.0, True, None), (0.5, False, STEP_TOL), (0.25, False, STEP_TOL),
+                     (0.625, False, STEP_TOL), (1.0, False, None)]
+    solved = State(np.zeros(3), {"w": np.ones(4), "u": np.ones(2), "x": np.ones(2)})
+    tols = []
+
+    def design_step(params, guess, rho, direct=False, tol=None, load_step=False):
+        assert not load_step
+        tols.append((float(rho[0]), tol))
+        if rho[0] == 1.0 and guess is solved:                      # the design itself from afar fails
+            raise NumericalError("does not converge", {})
+        return State(rho, dict(solved.fields), params, True)
+
+    ramped(design_step, Continuation(), solved, 0.1, rho, ("w", "u", "x"), ("w",))
+    assert tols == [(1.0, None), (0.5, None), (1.0, None)]

@@ -218,10 +218,12 @@ class BlockSystem:
 
     # ---- forward solve ------------------------------------------------------------------
     def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,
-              progress=None, direct: bool = False) -> State:
+              progress=None, direct: bool = False, tol: float | None = None, load_step: bool = False) -> State:
         """Every field for densities ``rho``; ``guess`` (a state) warm-starts the solvers;
         ``direct``: the blocks' own solves without their own continuation (``FieldBlock.solve``),
-        for a caller that continues along a path of its own when this fails."""
+        for a caller that continues along a path of its own when this fails; ``tol``: the
+        cycles' tolerance instead of the settings' (a continuation's step short of its end);
+        ``load_step``: a step of the inflow ramp (:func:`~tofsi.coupling.monolithic.solve_monolithic`)."""
         fields = {name: None for name in self.names}
         if guess is not None:
             for name in self.names:
@@ -232,9 +234,9 @@ class BlockSystem:
             if len(comp) == 1:
                 fields[comp[0]] = self._solve_block(comp[0], fields, state, progress, direct=direct)
             elif self.method_for(comp) == "monolithic":
-                solve_monolithic(self, comp, fields, state, direct)
+                solve_monolithic(self, comp, fields, state, direct, tol, load_step)
             else:
-                self._partitioned(comp, fields, state, progress, direct)
+                self._partitioned(comp, fields, state, progress, direct, tol)
         state.fields = fields
         state.converged = True
         return state
@@ -261,8 +263,9 @@ class BlockSystem:
         for name in comp:
             fields[name] = self._solve_block(name, fields, state, progress, direct=direct)
 
-    def _partitioned(self, comp, fields, state, progress, direct=False) -> None:
+    def _partitioned(self, comp, fields, state, progress, direct=False, tol=None) -> None:
         s = self.settings
+        tol = s.tol if tol is None else tol
         relax = self.relaxed_field(comp)
         for name in comp:
             if fields[name] is None:
@@ -277,7 +280,7 @@ class BlockSystem:
             change = float(np.linalg.norm(new - fields[relax]) / max(np.linalg.norm(new), 1e-300))
             history.append({"iteration": k, "relative_change": change})
             log.info("partitioned coupling %d: relative change of %s %.3e", k, relax, change)
-            converged = change <= s.tol
+            converged = change <= tol
             fields[relax] = new if converged else accelerator.next(fields[relax], new)
             for name in comp[at + 1:]:
                 fields[name] = self._solve_block(name, fields, state, progress,

@@ -151,8 +151,10 @@ class CoupledModel:
         with self.linear_algebra.blas():
             system = self.system_for(stage)
 
-            def at(p: Continuation, start: State | None, densities=rho, direct: bool = False) -> State:
-                return self.unfolded(system.solve(densities, p, start, progress, direct=direct))
+            def at(p: Continuation, start: State | None, densities=rho, direct: bool = False,
+                   tol: float | None = None, load_step: bool = False) -> State:
+                return self.unfolded(system.solve(densities, p, start, progress, direct=direct, tol=tol,
+                                                  load_step=load_step))
             try:
                 state = (ramped(at, stage.params, guess, c.min_load_step, rho, system.names,
                                 inflow_fields=tuple(n for n in system.names if n == "w"))
