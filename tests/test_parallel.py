@@ -4,6 +4,7 @@ Skipped with the reason where petsc4py or mpiexec is absent (the default
 install is pip-only; ``docs/parallel.md`` tells how to get them).
 """
 
+import json
 import os
 import shutil
 import subprocess
@@ -393,3 +394,56 @@ def test_a_failing_mover_by_slabs_fails_on_every_rank_alike(tmp_path):
     messages = [Path(f"{out}.rank{r}.txt").read_text() for r in range(2)]
     assert messages[0] == messages[1]
     assert "yeoh mover (by slabs): no convergence beyond load 0 after 1 cutbacks" in messages[0]
+
+
+@pytest.mark.parametrize("amplitude, factor, mover, diagnosis", [
+    ("1.0", "1", ["mover.name=spring", "mover.spring.increments=2"],
+     "spring mover (by slabs): 11 inverted element(s); worst element 141 (skewness -1.9) at (1.46, 0.65) m"),
+    ("2.0", "1", ["mover.name=linear", "mover.linear.increments=3", "mover.linear.chi=0.5"],
+     "linear mover (by slabs): the element matrices of 2 quad(s) are not finite at the increment's stiffness "
+     "point (elements 117, 138: inverted or degenerate there) at increment 2 of 3; after increment 1 the worst "
+     "element is 139 (skewness -1.99, 3 inverted) at (1.27, 0.65) m"),
+    ("0.08", "nan", ["mover.name=spring", "mover.spring.increments=2"],
+     "spring mover (by slabs): prescribed displacement contains NaN or inf")])
+def test_a_failing_move_in_increments_by_slabs_fails_on_every_rank_alike(tmp_path, amplitude, factor, mover, diagnosis):
+    """Moves in increments by slabs that fail, 20 x 10 elements, the wall design: bent 1 m, the spring's
+    mesh in 2 increments ends with 11 inverted quads; bent 2 m, linear elasticity in 3 with ``chi = 1/2``
+    inverts 3 quads in its first increment, so the second's element matrices (``det J^(1/2)``) are NaN
+    on the quads of rank 1's slab only, which every rank learns before the solve across them; a NaN
+    motion is refused before any solve. Every rank raises the same NumericalError with its diagnosis
+    (the worst element and where), none is left waiting (the run ends within its timeout), and the
+    same mover then moves the 0.08 m bend as the serial mover does, to 1e-10."""
+    sets = ["mesh.h_min=0.1", "mesh.h_max=0.1", *mover]
+    out = tmp_path / "failure"
+    run_on_two_ranks("tests/mpi_slab_failure.py", FSI, str(out), amplitude, factor, *sets)
+    records = [json.loads(Path(f"{out}.rank{r}.json").read_text()) for r in range(2)]
+    for record in records:
+        record["diagnostic"].get("report", {}).pop("wall_time_s", None)      # each rank's clock
+    assert records[0] == records[1]
+    assert records[0]["message"] == diagnosis
+    bad = records[0]["diagnostic"].get("non_finite_elements")
+    if bad is not None:                                   # a fault on one rank's quads only
+        flow = tofsi.Problem(tofsi.load_scene(FSI, sets)).model.flow
+        slabs = [set(SlabPartition.of(flow, r, 2).elements.tolist()) for r in range(2)]
+        assert set(bad) <= slabs[1] and not set(bad) & slabs[0]
+    again = np.load(f"{out}.npz")
+    x = tofsi.Problem(tofsi.load_scene(FSI, sets)).model.motion.move(again["u"], again["rho"]).displacement.ravel()
+    assert np.abs(x).max() > 0.01
+    assert np.linalg.norm(again["x"] - x) <= 1e-10 * np.linalg.norm(x)
+
+
+def test_a_slab_matrix_recovers_from_a_failed_factorization(tmp_path):
+    """Linear elasticity's matrix of the FSI scene's moving mesh (20 x 10), one quad's element
+    matrix NaN on rank 1 only: its solve across the ranks fails on both with the same error
+    (MUMPS's factorization fails: KSP reason -11); assembled right, the same matrix then solves
+    (GMRES to 1e-8 with its new factors, then exactly) as a matrix that never failed, to 1e-12
+    (MUMPS keeps a failed analysis for a matrix of the same pattern: the solver is discarded)."""
+    out = tmp_path / "matrix"
+    run_on_two_ranks("tests/mpi_slab_matrix.py", FSI, str(out), "mesh.h_min=0.1", "mesh.h_max=0.1",
+                     "mover.name=linear", "mover.linear.increments=2")
+    records = [json.loads(Path(f"{out}.rank{r}.json").read_text()) for r in range(2)]
+    assert records[0] == records[1]
+    steps = records[0]
+    assert steps["broken"]["message"].startswith("solve across the ranks failed (KSP reason -11")
+    assert steps["again"]["error"] <= 1e-12 and steps["exact"]["error"] <= 1e-12
+    assert steps["again"]["factorizations"] == 2 and steps["exact"]["factorizations"] == 3

@@ -41,6 +41,7 @@ import time
 import numpy as np
 
 from movers.base import MoveReport, element_apply, quality_record
+from movers.failure import at as place
 from movers.increment_solvers import KEPT_FACTORS_TOL_RATIO
 from movers.incremental import stiffness_points
 from movers.spring_kernel import DIAGONALS
@@ -83,6 +84,13 @@ class SlabIncrementMover(SlabMover):
         ``[W (-K d_p) + S_c d]_f, d_p`` and the slab's unscaled element matrices ``K0 (E_r, 8, 8)``."""
         Xe = d.slab.points[self.quads] + x.reshape(-1, 2)[self.quads]
         K0 = kernel(Xe)
+        finite = np.isfinite(K0).all(axis=(1, 2))
+        if not self.valid_everywhere(finite.all()):      # decided by all ranks: none is left in MUMPS
+            bad = np.concatenate(self.mpi.allgather(d.slab.element_ids[~finite]))
+            raise NumericalError(f"the element matrices of {bad.size} quad(s) are not finite at the increment's "
+                                 f"stiffness point (elements {', '.join(map(str, np.sort(bad)[:5]))}"
+                                 f"{', ...' if bad.size > 5 else ''}: inverted or degenerate there)",
+                                 {"non_finite_elements": np.sort(bad).tolist()})
         Ke = K0 * d.slab.stiffening[:, None, None]
         step_p = np.where(self.is_fixed, step, 0.0)
         rhs = -self.apply(d, Ke, step_p) if np.any(step_p) else np.zeros_like(step)
@@ -95,6 +103,8 @@ class SlabIncrementMover(SlabMover):
         """The change ``dx`` (2n,) of one increment by ``step``, its stiffness at ``at`` (2n,)."""
         rhs, _ = self.system(d, kernel, at, step, matrix)
         dx = matrix.solve(rhs, rtol=rtol)
+        if not np.all(np.isfinite(dx)):                  # replicated: the same decision on every rank
+            raise NumericalError("the increment's solve across the ranks is not finite", {})
         dx[self.fixed] = step[self.fixed]                # exact, whatever the solver's tolerance
         return dx
 
@@ -110,6 +120,17 @@ class SlabIncrementMover(SlabMover):
             skew.append(quality.skewness(d.slab.points + dx.reshape(-1, 2), self.quads))
         return np.where(skew[1] > skew[0], 1, 0)
 
+    def failure(self, report: MoveReport, problem, x: np.ndarray, k: int, err: NumericalError) -> NumericalError:
+        """The error of increment ``k`` failing from the accepted ``x`` (2n,, replicated): the same
+        message and diagnostic on every rank, with the worst element of ``x`` where the mesh had moved."""
+        quality_now = quality_record(problem, x.reshape(-1, 2), k / self.n)
+        where = "" if not np.any(x) else (
+            f"; after increment {k} the worst element is {quality_now['worst_element']} (skewness "
+            f"{quality_now['min_skewness']:.3g}, {quality_now['n_inverted']} inverted) at {place(quality_now['worst_location'])}")
+        return NumericalError(f"{report.mover} mover (by slabs): {err} at increment {k + 1} of {self.n}{where}",
+                              {"report": report.as_dict(), "quality": quality_now, **err.diagnostic},
+                              state=x.reshape(-1, 2))
+
     # ---- the forward move -------------------------------------------------------------------
     def move(self, u, rho, guess=None):
         """``(x (2n,), linearization, report)``: the mesh moved in increments with the structure's
@@ -122,6 +143,8 @@ class SlabIncrementMover(SlabMover):
             self.design_key = key
         problem = self.motion.problem(rho)               # replicated: the quality records
         prescribed = self.motion.target(u).reshape(-1)
+        if not np.all(np.isfinite(prescribed)):          # replicated: refused on every rank alike
+            raise NumericalError(f"{self.mover.name} mover (by slabs): prescribed displacement contains NaN or inf", {})
         target = prescribed.copy() if d.blend is not None else np.where(self.is_fixed, prescribed, 0.0)
         t0, counts = time.perf_counter(), self.solver_counts()
         report = MoveReport(mover=self.mover.name)
@@ -141,8 +164,7 @@ class SlabIncrementMover(SlabMover):
                 dx = self.increment(d, kernel, at, step, self.matrices[k], self.rtol)
             except NumericalError as err:
                 report.message = str(err)
-                raise NumericalError(f"{report.mover} mover (by slabs): {err} at increment {k + 1} of {self.n}",
-                                     {"report": report.as_dict()}, state=x.reshape(-1, 2)) from err
+                raise self.failure(report, problem, x, k, err) from err
             self.owners[k] = lin.token
             x = x + dx
             states.append(x)
@@ -156,7 +178,7 @@ class SlabIncrementMover(SlabMover):
         report.wall_time_s = time.perf_counter() - t0
         if last["n_inverted"] and not problem.accept_inverted:
             report.message = (f"{last['n_inverted']} inverted element(s); worst element {last['worst_element']} "
-                              f"(skewness {last['min_skewness']:.2g})")
+                              f"(skewness {last['min_skewness']:.2g}) at {place(last['worst_location'])}")
             raise NumericalError(f"{report.mover} mover (by slabs): {report.message}",
                                  {"report": report.as_dict(), "quality": last}, state=x.reshape(-1, 2))
         if last["n_inverted"]:

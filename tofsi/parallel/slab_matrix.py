@@ -102,6 +102,15 @@ class SlabMatrix:
         self.factorizations += 1
         self.fresh, self.stale = True, False
 
+    def discard(self) -> None:
+        """Drop the solver and its factors (collective): the next solve analyses and factorizes
+        afresh. After a failed factorization MUMPS would otherwise keep failing, whatever the
+        matrix assembled next (PETSc keeps a failed analysis for a matrix of the same pattern)."""
+        self.ksp.destroy()
+        if self.recycle:
+            self.pmat.destroy()
+        self.ksp, self.pmat, self.fresh, self.stale = None, None, False, False
+
     def expire(self) -> None:
         """The kept factors precondition no later matrix: the next solve refactorizes (a new design)."""
         self.stale = True
@@ -135,8 +144,11 @@ class SlabMatrix:
                 self.ksp.setUp()
             (self.ksp.solveTranspose if transpose else self.ksp.solve)(self.b, self.x)
         reason = self.ksp.getConvergedReason()
-        if reason < 0:
+        if reason < 0:                               # the factorization failed (the same on every rank)
             from tofsi.core.errors import NumericalError
-            raise NumericalError(f"solve across the ranks failed (KSP reason {reason})", {"reason": reason})
+            self.discard()                           # MUMPS keeps a failed analysis: the next solve starts anew
+            name = next((k for k, v in vars(PETSc.KSP.ConvergedReason).items() if k.isupper() and v == reason), "")
+            raise NumericalError(f"solve across the ranks failed (KSP reason {reason} {name})",
+                                 {"reason": int(reason), "reason_name": name})
         self.gather.scatter(self.x, self.whole, PETSc.InsertMode.INSERT_VALUES, PETSc.ScatterMode.FORWARD)
         return self.whole.getArray()[self.new_of_old].copy()
