@@ -34,13 +34,20 @@ b = np.random.default_rng(1).standard_normal(mover.size)
 reference = mover.new_matrix()
 reference.assemble(mover.dofs, K)
 want = reference.solve(b)
+reference.assemble(mover.dofs, 2 * K)
+want2 = reference.solve(b)
 matrix = mover.new_matrix()
 steps = {}
-for label, Ke, rtol in (("broken", broken, 1e-8), ("again", K, 1e-8), ("exact", K, None)):
+for label, Ke, rtol in (("broken", broken, 1e-8), ("again", K, 1e-8), ("exact", K, None), ("doubled", 2 * K, 1e-13)):
+    if label == "doubled":                         # as at a new design: the kept factors expire
+        matrix.expire()
     matrix.assemble(mover.dofs, Ke)
     try:
         x = matrix.solve(b, rtol=rtol)
-        steps[label] = {"error": float(np.linalg.norm(x - want) / np.linalg.norm(want))}
+        if label == "exact":                       # as a reverse sweep: the transposed solve too
+            x = 0.5 * (x + matrix.solve(b, transpose=True))
+        truth = want2 if label == "doubled" else want
+        steps[label] = {"error": float(np.linalg.norm(x - truth) / np.linalg.norm(truth))}
     except NumericalError as err:
         steps[label] = {"message": str(err)}
     steps[label]["factorizations"] = matrix.factorizations

@@ -35,9 +35,10 @@ class SlabMatrix:
 
     halo_dofs : element dofs (serial numbering) of every element touching a dof this rank owns
     fixed : the Dirichlet dofs (serial numbering)
-    recycle : keep the factors' matrix beside the assembled one, so that a later matrix's solve
-        (with ``rtol``) is GMRES preconditioned by them (a Newton's tangents); without it the
-        factors are of the assembled matrix itself and every solve is exact
+    recycle : keep the factors when a later matrix is assembled (PETSc's reused preconditioner:
+        no copy of the matrix they came from), so that its solve (with ``rtol``) is GMRES
+        preconditioned by them (a Newton's tangents, a move's increments); without it every
+        solve is exact, refactorizing where the matrix changed
     """
 
     def __init__(self, comm, mesh, halo_dofs: np.ndarray, fixed: np.ndarray, recycle: bool = False):
@@ -58,7 +59,7 @@ class SlabMatrix:
         self.mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         self.b, self.x = self.mat.createVecLeft(), self.mat.createVecRight()
         self.gather, self.whole = PETSc.Scatter.toAll(self.x)
-        self.ksp, self.pmat, self.recycle = None, None, recycle
+        self.ksp, self.recycle = None, recycle
         self.factorizations, self.krylov_iterations = 0, 0
         self.fresh, self.stale = False, False        # the factors are of the assembled matrix / worn out
 
@@ -87,18 +88,20 @@ class SlabMatrix:
         self.refactor()
 
     def refactor(self) -> None:
-        """The LU of the assembled matrix (with ``recycle``, of its copy ``P``, which later assemblies leave alone)."""
+        """The LU of the assembled matrix; with ``recycle``, later assemblies leave it alone (the
+        preconditioner is reused until the next :meth:`refactor`: no copy of the matrix is kept)."""
         from petsc4py import PETSc
         if self.ksp is None:
-            self.pmat = self.mat.duplicate(copy=True) if self.recycle else self.mat
             self.ksp = PETSc.KSP().create(comm=self.comm)
             self.ksp.getPC().setType("lu")
             self.ksp.getPC().setFactorSolverType("mumps")
-            self.ksp.setOperators(self.mat, self.pmat)
-        elif self.recycle:
-            self.mat.copy(self.pmat, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            self.ksp.setOperators(self.mat)
+        pc = self.ksp.getPC()
+        pc.setReusePreconditioner(False)
         self.ksp.setType("preonly")
         self.ksp.setUp()
+        pc.setUp()               # now: KSPSetUp may leave a set-up PC alone (seen after an expiry)
+        pc.setReusePreconditioner(self.recycle)
         self.factorizations += 1
         self.fresh, self.stale = True, False
 
@@ -107,9 +110,7 @@ class SlabMatrix:
         afresh. After a failed factorization MUMPS would otherwise keep failing, whatever the
         matrix assembled next (PETSc keeps a failed analysis for a matrix of the same pattern)."""
         self.ksp.destroy()
-        if self.recycle:
-            self.pmat.destroy()
-        self.ksp, self.pmat, self.fresh, self.stale = None, None, False, False
+        self.ksp, self.fresh, self.stale = None, False, False
 
     def expire(self) -> None:
         """The kept factors precondition no later matrix: the next solve refactorizes (a new design)."""
@@ -130,7 +131,7 @@ class SlabMatrix:
             self.ksp.setType("gmres")
             self.ksp.setPCSide(PETSc.PC.Side.RIGHT)             # rtol on the true residual
             self.ksp.setTolerances(rtol=rtol, atol=0.0, max_it=MAX_KRYLOV)
-            self.ksp.setUp()                                 # the factors of P are kept
+            self.ksp.setUp()                                 # the kept factors are reused
             (self.ksp.solveTranspose if transpose else self.ksp.solve)(self.b, self.x)
             its = self.ksp.getIterationNumber()
             self.krylov_iterations += its
