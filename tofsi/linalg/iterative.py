@@ -72,7 +72,7 @@ designs), the gradient's relative error at transposed tolerances 1e-8 / 1e-7
 elements (the dissipation 0.1-1.2e-7 / - / 5.0e-6 / 0.5-1.1e-4), 0.4-7.4e-8 /
 0.8-4.3e-7 / 0.4-7.6e-6 / 0.5-3.8e-5 at 90 x 45 and 0.7-1.5e-8 / 0.9-3.8e-7
 / 1.5-1.7e-6 / 2.1-4.7e-5 at 180 x 90, for 70-77 / 58-64 / 49-54 / 39-46
-transposed GMRES iterations at 180 x 90 (the error is 1-20 times the
+transposed GMRES iterations at 180 x 90 (with ``c = 1``; the error is 1-20 times the
 tolerance: the compliance gradient is a difference of flow and structure
 parts several times its size). What MMA needs is read from whole
 optimizations against the direct path's (beam scene, 40 x 20, 60 iterations
