@@ -241,27 +241,29 @@ class BlockSystem:
         state.converged = True
         return state
 
-    def _solve_block(self, name, fields, state, progress=None, previous=None, direct=False):
+    def _solve_block(self, name, fields, state, progress=None, previous=None, direct=False, tol=None):
         block = self.by_name[name]
         value, lin, report = block.solve(fields, state.rho, state.params, guess=fields.get(name),
                                          previous=previous, progress=progress,
-                                         **({"direct": True} if direct and block.own_continuation else {}))
+                                         **({"direct": True} if direct and block.own_continuation else {}),
+                                         **({"tol": tol} if tol is not None and block.takes_tolerance else {}))
         state.linearizations[name] = lin
         if report is not None and block.report_name:
             state.reports[block.report_name] = report
         return value
 
-    def start(self, comp, fields, state, progress=None, direct=False) -> None:
+    def start(self, comp, fields, state, progress=None, direct=False, tol=None) -> None:
         """Fill the fields of the cycle ``comp`` that have no guess: one sweep in order (each block
         solved with the latest values of the others, absent ones at their initial value;
-        ``direct``: without the blocks' own continuation)."""
+        ``direct``: without the blocks' own continuation; ``tol``: each block that takes one
+        solved to that scaled residual only, ``FieldBlock.takes_tolerance``)."""
         if all(fields[n] is not None for n in comp):
             return
         for name in comp:
             if fields[name] is None:
                 fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
         for name in comp:
-            fields[name] = self._solve_block(name, fields, state, progress, direct=direct)
+            fields[name] = self._solve_block(name, fields, state, progress, direct=direct, tol=tol)
 
     def _partitioned(self, comp, fields, state, progress, direct=False, tol=None) -> None:
         s = self.settings

@@ -47,6 +47,7 @@ EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exact
 SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
 STALL_ITERATIONS = 16    # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
 STALL_FACTOR = 2.0
+SWEEP_TOL = 1e-2         # the scaled residual the starting sweep of a loose solve (a ramp's step) solves each block to
 
 
 class CoupledLinearization:
@@ -76,7 +77,7 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
     s = system.settings
     tol = s.tol if tol is None else tol
     rho, params = state.rho, state.params
-    system.start(comp, fields, state, direct=direct)
+    system.start(comp, fields, state, direct=direct, tol=SWEEP_TOL if tol > s.tol else None)
     solver = system.linear_solver(comp)
     blocks = [system.by_name[n] for n in comp]
     scales, history, kept = None, [], None
