@@ -223,7 +223,8 @@ class BlockSystem:
         ``direct``: the blocks' own solves without their own continuation (``FieldBlock.solve``),
         for a caller that continues along a path of its own when this fails; ``tol``: the
         cycles' tolerance instead of the settings' (a continuation's step short of its end);
-        ``load_step``: a step of the inflow ramp (:func:`~tofsi.coupling.monolithic.solve_monolithic`)."""
+        ``load_step``: a step of the inflow ramp (:func:`~tofsi.coupling.monolithic.solve_monolithic`;
+        its Newton starts from the solver of the guess's cycle, the last step's, where it has one)."""
         fields = {name: None for name in self.names}
         if guess is not None:
             for name in self.names:
@@ -234,7 +235,9 @@ class BlockSystem:
             if len(comp) == 1:
                 fields[comp[0]] = self._solve_block(comp[0], fields, state, progress, direct=direct)
             elif self.method_for(comp) == "monolithic":
-                solve_monolithic(self, comp, fields, state, direct, tol, load_step)
+                last = guess.coupled.get(comp) if load_step and guess is not None else None
+                solve_monolithic(self, comp, fields, state, direct, tol, load_step,
+                                 recycled=None if last is None else last.solver)
             else:
                 self._partitioned(comp, fields, state, progress, direct, tol)
         state.fields = fields

@@ -67,18 +67,21 @@ class CoupledLinearization:
 
 
 def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: float | None = None,
-                     load_step: bool = False) -> None:
+                     load_step: bool = False, recycled=None) -> None:
     """Solve the cycle ``comp`` of the block ``system`` in place: ``fields`` (a guess, or none:
     one sweep first, ``direct``: without the blocks' own continuation) become the solution (to
     the largest scaled residual ``tol``, default the settings'), and ``state`` receives the
     blocks' linearizations, the cycle's :class:`CoupledLinearization` and the report ``"coupling"``.
     ``load_step``: a step of the inflow ramp, far from its solution (the small blocks refactorized
-    after a step that contracted little)."""
+    after a step that contracted little); ``recycled``: the last load step's solver, whose
+    preconditioner starts this one's (a new one only when it goes stale)."""
     s = system.settings
     tol = s.tol if tol is None else tol
     rho, params = state.rho, state.params
     system.start(comp, fields, state, direct=direct, tol=SWEEP_TOL if tol > s.tol else None)
     solver = system.linear_solver(comp)
+    if recycled is not None:
+        solver = recycled.with_factorize(solver.factorize)
     blocks = [system.by_name[n] for n in comp]
     scales, history, kept = None, [], None
 
