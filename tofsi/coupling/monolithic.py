@@ -24,7 +24,14 @@ factors are kept): the large scene's step to its full inflow at 80 x 40 took 83 
 iterations over 11 Newton steps with the first iterate's factors, 36-38 with these. Elsewhere
 (a design change's solve, the densities' path) the rule is off: the Newton's path, though to the
 same tolerance, then differs, and the large example's optimization, sensitive to it at a trial
-design whose state snaps from 0.36 m to 0.22 m, ended elsewhere (1.98 or 1.62 J/m against 1.70). It reports its history and raises
+design whose state snaps from 0.36 m to 0.22 m, ended elsewhere (1.98 or 1.62 J/m against 1.70).
+A ramp's step after its first starts from the last step's solver (``recycled``: the block
+preconditioner with its flow factors; at 80 x 40 the step to the full inflow makes no new flow
+factorization, its Newton and GMRES counts as before). A solve looser than the settings' (a ramp's
+step short of its end) that starts with a sweep (from rest) solves each block that takes a
+tolerance (the flow, a finite-strain structure) to ``SWEEP_TOL`` of its force scale only: the
+sweep only starts the Newton (at 80 x 40 from rest: 1 flow Newton step, not 3; 6 structure
+steps, not 10; the monolithic Newton's 3 steps as before). It reports its history and raises
 :class:`~tofsi.core.errors.NumericalError` when it does not converge.
 
 The block system (:class:`~tofsi.coupling.block_system.BlockSystem`) gives the
