@@ -150,9 +150,9 @@ class LoadStepNewton:
                 element = None if why.broken is None else why.broken["element"]
                 blocked[element] = blocked.get(element, 0) + 1
                 if element is not None and blocked[element] >= BLOCKED_CUTBACKS:
-                    ops.fail(report, x, f"no convergence beyond load {load:.4g}: element {element} blocked "
-                             f"{blocked[element]} of {report.cutbacks} cut steps, the mesh folds there "
-                             f"(last: {why})", load, why.broken)
+                    ops.fail(report, x, f"no convergence beyond load {load:.4g}: {why}; that element blocked "
+                             f"{blocked[element]} of {report.cutbacks} cut steps (the mesh folds there)",
+                             load, why.broken)
                 if step < p.min_increment or report.cutbacks > p.max_cutbacks:
                     ops.fail(report, x, f"no convergence beyond load {load:.4g} after {report.cutbacks} "
                              f"cutbacks (last: {why})", load, why.broken)
