@@ -22,8 +22,9 @@ nearly quartic as with a large A20, extended up to 4x), falling back to
 halving; every trial refuses an element whose ``det F`` or corner Jacobian
 is not positive, and an accepted step must reduce ``|R_free|``. A step that fails
 (inversion, no decrease, iteration limit) is cut in half; the mover stops
-with a diagnostic when the step falls below ``min_increment`` or after
-``max_cutbacks`` cuts. A move given ``initial``, the solution of a nearby
+with a diagnostic when the step falls below ``min_increment``, after
+``max_cutbacks`` cuts, or once one element has blocked 8 cut steps (the mesh
+folds there: :data:`movers.newton.BLOCKED_CUTBACKS`). A move given ``initial``, the solution of a nearby
 motion (the previous design's, or the previous coupling sweep's), makes one
 step from there straight to the full motion, and falls back to load steps
 from zero when that fails. Tangent systems are solved by a

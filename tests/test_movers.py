@@ -245,6 +245,16 @@ def test_foil_squeezed_against_the_wall_ends_in_status_3(name, cli, tmp_path):
     assert "Traceback" not in run.stderr and (tmp_path / "diagnostic.json").is_file()
 
 
+def test_a_hopeless_yeoh_move_fails_once_one_element_blocks_its_cut_steps():
+    """The foil squeezed against the wall (above): each cut step creeps nearer the fold of the
+    same element, down to ``min_increment`` after 17 cutbacks; the move fails once that element
+    has blocked ``BLOCKED_CUTBACKS`` of them, naming it (no successful move in the tests has one
+    element block more than 2)."""
+    with pytest.raises(NumericalError, match=r"inverts element 1032 at .*; that element blocked 8 of \d+ cut steps") as err:
+        run_move(load("foil_in_channel", "mover.name=yeoh", "deformation.translation=0.474"))
+    assert err.value.diagnostic["report"]["cutbacks"] < 17
+
+
 @pytest.mark.parametrize("name", MOVERS)
 def test_the_amg_path_gives_the_direct_answer(name):
     scene = load("foil_in_channel", f"mover.name={name}", "deformation.mode=rotation",

@@ -194,6 +194,7 @@ class FieldBlock(ABC):
     slow_couplings: tuple[str, ...] = ()   # couplings a quasi-Newton solve may keep fixed
     matrix_free_couplings: tuple[str, ...] = ()   # couplings known by their products only (no LU of the whole)
     own_continuation: bool = False     # solve() continues in a load of its own, and takes ``direct`` to skip it
+    takes_tolerance: bool = False      # solve() takes ``tol``: the scaled residual to stop at (a sweep's start)
 
     @property
     @abstractmethod
@@ -229,7 +230,10 @@ class FieldBlock(ABC):
         ``own_continuation`` (its solve steps a load of its own when Newton fails: a
         finite-strain structure) also takes ``direct=True`` from a caller that carries the
         coupled problem along a path of its own when this solve fails (the inflow ramp after
-        a direct attempt from a one-way state): no continuation of its own, fail fast.
+        a direct attempt from a one-way state): no continuation of its own, fail fast. A block
+        with ``takes_tolerance`` also takes ``tol``: the largest residual relative to its force
+        scale (:meth:`residual_scale`) to stop at instead of its own tolerance, for a sweep that
+        only starts a coupled Newton.
         """
 
     def residual_scale(self, fields: Fields, rho, params: Continuation, lin: Linearization) -> float:

@@ -223,7 +223,8 @@ class BlockSystem:
         ``direct``: the blocks' own solves without their own continuation (``FieldBlock.solve``),
         for a caller that continues along a path of its own when this fails; ``tol``: the
         cycles' tolerance instead of the settings' (a continuation's step short of its end);
-        ``load_step``: a step of the inflow ramp (:func:`~tofsi.coupling.monolithic.solve_monolithic`)."""
+        ``load_step``: a step of the inflow ramp (:func:`~tofsi.coupling.monolithic.solve_monolithic`;
+        its Newton starts from the solver of the guess's cycle, the last step's, where it has one)."""
         fields = {name: None for name in self.names}
         if guess is not None:
             for name in self.names:
@@ -234,34 +235,38 @@ class BlockSystem:
             if len(comp) == 1:
                 fields[comp[0]] = self._solve_block(comp[0], fields, state, progress, direct=direct)
             elif self.method_for(comp) == "monolithic":
-                solve_monolithic(self, comp, fields, state, direct, tol, load_step)
+                last = guess.coupled.get(comp) if load_step and guess is not None else None
+                solve_monolithic(self, comp, fields, state, direct, tol, load_step,
+                                 recycled=None if last is None else last.solver)
             else:
                 self._partitioned(comp, fields, state, progress, direct, tol)
         state.fields = fields
         state.converged = True
         return state
 
-    def _solve_block(self, name, fields, state, progress=None, previous=None, direct=False):
+    def _solve_block(self, name, fields, state, progress=None, previous=None, direct=False, tol=None):
         block = self.by_name[name]
         value, lin, report = block.solve(fields, state.rho, state.params, guess=fields.get(name),
                                          previous=previous, progress=progress,
-                                         **({"direct": True} if direct and block.own_continuation else {}))
+                                         **({"direct": True} if direct and block.own_continuation else {}),
+                                         **({"tol": tol} if tol is not None and block.takes_tolerance else {}))
         state.linearizations[name] = lin
         if report is not None and block.report_name:
             state.reports[block.report_name] = report
         return value
 
-    def start(self, comp, fields, state, progress=None, direct=False) -> None:
+    def start(self, comp, fields, state, progress=None, direct=False, tol=None) -> None:
         """Fill the fields of the cycle ``comp`` that have no guess: one sweep in order (each block
         solved with the latest values of the others, absent ones at their initial value;
-        ``direct``: without the blocks' own continuation)."""
+        ``direct``: without the blocks' own continuation; ``tol``: each block that takes one
+        solved to that scaled residual only, ``FieldBlock.takes_tolerance``)."""
         if all(fields[n] is not None for n in comp):
             return
         for name in comp:
             if fields[name] is None:
                 fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
         for name in comp:
-            fields[name] = self._solve_block(name, fields, state, progress, direct=direct)
+            fields[name] = self._solve_block(name, fields, state, progress, direct=direct, tol=tol)
 
     def _partitioned(self, comp, fields, state, progress, direct=False, tol=None) -> None:
         s = self.settings

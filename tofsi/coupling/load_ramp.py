@@ -157,7 +157,8 @@ def secant(path: list, t: float, names: tuple[str, ...]) -> State | None:
     """The start of the step to ``t`` from the states along the ``path`` (``(t_k, state)``, from
     ``(0, None)``: rest, every field zero): the fields ``names`` on the secant
     ``z_k + (t - t_k) / (t_k - t_(k-1)) (z_k - z_(k-1))`` (after the first step: ``z_1 t / t_1``),
-    the others at ``z_k``; None from rest (the step's sweep fills every field)."""
+    the others at ``z_k``; None from rest (the step's sweep fills every field). It keeps the last
+    state's coupled linearizations (``coupled``: a load step's Newton starts from their solver)."""
     (t1, last) = path[-1]
     if last is None:
         return None
@@ -167,7 +168,7 @@ def secant(path: list, t: float, names: tuple[str, ...]) -> State | None:
     for name in names:
         if fields.get(name) is not None:
             fields[name] = fields[name] + r * (fields[name] - (0.0 if before is None else before.fields[name]))
-    return State(rho=last.rho, fields=fields, params=last.params, stage=last.stage)
+    return State(rho=last.rho, fields=fields, params=last.params, stage=last.stage, coupled=last.coupled)
 
 
 def _solved_elsewhere(guess: State | None, fields, rho) -> bool:

@@ -24,7 +24,14 @@ factors are kept): the large scene's step to its full inflow at 80 x 40 took 83 
 iterations over 11 Newton steps with the first iterate's factors, 36-38 with these. Elsewhere
 (a design change's solve, the densities' path) the rule is off: the Newton's path, though to the
 same tolerance, then differs, and the large example's optimization, sensitive to it at a trial
-design whose state snaps from 0.36 m to 0.22 m, ended elsewhere (1.98 or 1.62 J/m against 1.70). It reports its history and raises
+design whose state snaps from 0.36 m to 0.22 m, ended elsewhere (1.98 or 1.62 J/m against 1.70).
+A ramp's step after its first starts from the last step's solver (``recycled``: the block
+preconditioner with its flow factors; at 80 x 40 the step to the full inflow makes no new flow
+factorization, its Newton and GMRES counts as before). A solve looser than the settings' (a ramp's
+step short of its end) that starts with a sweep (from rest) solves each block that takes a
+tolerance (the flow, a finite-strain structure) to ``SWEEP_TOL`` of its force scale only: the
+sweep only starts the Newton (at 80 x 40 from rest: 1 flow Newton step, not 3; 6 structure
+steps, not 10; the monolithic Newton's 3 steps as before). It reports its history and raises
 :class:`~tofsi.core.errors.NumericalError` when it does not converge.
 
 The block system (:class:`~tofsi.coupling.block_system.BlockSystem`) gives the
@@ -47,6 +54,7 @@ EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exact
 SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
 STALL_ITERATIONS = 16    # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
 STALL_FACTOR = 2.0
+SWEEP_TOL = 1e-2         # the scaled residual the starting sweep of a loose solve (a ramp's step) solves each block to
 
 
 class CoupledLinearization:
@@ -66,18 +74,21 @@ class CoupledLinearization:
 
 
 def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: float | None = None,
-                     load_step: bool = False) -> None:
+                     load_step: bool = False, recycled=None) -> None:
     """Solve the cycle ``comp`` of the block ``system`` in place: ``fields`` (a guess, or none:
     one sweep first, ``direct``: without the blocks' own continuation) become the solution (to
     the largest scaled residual ``tol``, default the settings'), and ``state`` receives the
     blocks' linearizations, the cycle's :class:`CoupledLinearization` and the report ``"coupling"``.
     ``load_step``: a step of the inflow ramp, far from its solution (the small blocks refactorized
-    after a step that contracted little)."""
+    after a step that contracted little); ``recycled``: the last load step's solver, whose
+    preconditioner starts this one's (a new one only when it goes stale)."""
     s = system.settings
     tol = s.tol if tol is None else tol
     rho, params = state.rho, state.params
-    system.start(comp, fields, state, direct=direct)
+    system.start(comp, fields, state, direct=direct, tol=SWEEP_TOL if tol > s.tol else None)
     solver = system.linear_solver(comp)
+    if recycled is not None:
+        solver = recycled.with_factorize(solver.factorize)
     blocks = [system.by_name[n] for n in comp]
     scales, history, kept = None, [], None
 

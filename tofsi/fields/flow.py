@@ -206,6 +206,7 @@ class FlowBlock(FieldBlock):
     """The flow ``w = (v, p)``: Taylor-Hood Navier-Stokes/Stokes with Brinkman friction."""
 
     name, symbol, report_name = "w", "F", "flow"
+    takes_tolerance = True
 
     def __init__(self, flow: Flow, moving_mesh: bool = False):
         self.flow = flow
@@ -234,10 +235,10 @@ class FlowBlock(FieldBlock):
     def linearize(self, fields, rho, params):
         return FlowLinearization(self, fields, rho, params)
 
-    def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
+    def solve(self, fields, rho, params, guess=None, previous=None, progress=None, tol=None):
         X = moved_mesh(fields, self.inputs)
         solution = self.flow.newton_solve(X, rho, guess, params,
-                                          solver=None if previous is None else previous.solver)
+                                          solver=None if previous is None else previous.solver, tol=tol)
         values = {**fields, "w": solution.w}
         lin = FlowLinearization(self, values, rho, params, jacobian=solution.jacobian,
                                 solver=solution.solver)

@@ -171,6 +171,7 @@ class StructureBlock(FieldBlock):
 
     name, symbol, report_name = "u", "S", "structure"
     own_continuation = True            # a nonlinear material's load steps (``direct``: none)
+    takes_tolerance = True             # a nonlinear material's Newton (``tol``)
 
     def __init__(self, structure: Structure, material, moving_mesh: bool = False):
         self.structure, self.material = structure, material
@@ -195,7 +196,7 @@ class StructureBlock(FieldBlock):
     def linearize(self, fields, rho, params):
         return StructureLinearization(self, fields, rho, params)
 
-    def solve(self, fields, rho, params, guess=None, previous=None, progress=None, direct=False):
+    def solve(self, fields, rho, params, guess=None, previous=None, progress=None, direct=False, tol=None):
         """From the guess (a nearby state) where the material is nonlinear (``direct``: Newton
         alone, no load steps); the solver of an earlier sweep (``previous``) where it still
         serves (the LU of the same ``K_s``, or the Newton's recycled factorization)."""
@@ -203,7 +204,8 @@ class StructureBlock(FieldBlock):
         earlier = previous.solver if isinstance(previous, StructureLinearization) else None
         solver = self.material.solver(rho, simp, earlier)
         load = st.load(fields.get("w"), moved_mesh(fields, self.inputs), rho, params)
-        u, report = self.material.solve(load, rho, simp, guess=guess, solver=solver, direct=direct)
+        u, report = self.material.solve(load, rho, simp, guess=guess, solver=solver, direct=direct,
+                                        **({} if tol is None else {"tol": tol}))
         return u, StructureLinearization(self, {**fields, "u": u}, rho, params, solver), report
 
     def residual_scale(self, fields, rho, params, lin):

@@ -211,7 +211,8 @@ class FiniteStrainElasticity:
 
     # ---- Newton solve ------------------------------------------------------------------------
     def solve(self, f: np.ndarray, rho, simp: SIMP, guess: np.ndarray | None = None,
-              solver: RecyclingSolver | None = None, load_steps: bool = True) -> FiniteStrainSolution:
+              solver: RecyclingSolver | None = None, load_steps: bool = True,
+              tol: float | None = None) -> FiniteStrainSolution:
         """``u`` with ``R_int(u) = f`` on the free dofs and the clamped dofs at zero.
 
         guess : a displacement of a nearby problem (the previous coupling sweep's, design's or
@@ -224,6 +225,8 @@ class FiniteStrainElasticity:
         load_steps : False: Newton from the start alone, a :class:`~tofsi.core.errors.NumericalError`
             when it fails (a caller with a continuation of its own: the coupled solve's
             direct attempt, which the inflow ramp follows).
+        tol : the Newton's tolerance relative to the load instead of ``newton_tol`` (a solve
+            that only starts a coupled Newton).
         The result does not depend on either (to ``newton_tol``).
         """
         t0 = time.perf_counter()
@@ -241,20 +244,20 @@ class FiniteStrainElasticity:
         f0 = self.bc.homogenize(assemble_vector(self.dofs, state.forces, self.size))
         try:
             u, state = self._newton(start, state, f, 1.0, rho, simp, solver, report,
-                                    patience=None if load_steps else STALL_ITERATIONS)
+                                    patience=None if load_steps else STALL_ITERATIONS, tol=tol)
         except StepFailed as failed:
             if not load_steps:
                 self._fail(failed, 0.0, report, rho, simp, "Newton to the full load without load steps")
             log.info("structure: Newton to the full load failed (%s); load steps from %s", failed,
                      "the guess" if report.warm_start else "zero")
-            u, state = self._load_steps(f, f0, start, state, rho, simp, solver, report)
+            u, state = self._load_steps(f, f0, start, state, rho, simp, solver, report, tol)
         report.min_det_F = float(state.det_min.min())
         report.converged = True
         report.factorizations = solver.factorizations - factorizations
         report.wall_time_s = time.perf_counter() - t0
         return FiniteStrainSolution(u, report, solver)
 
-    def _load_steps(self, f, f0, u, state, rho, simp, solver, report: FiniteStrainReport):
+    def _load_steps(self, f, f0, u, state, rho, simp, solver, report: FiniteStrainReport, tol=None):
         """The load ``f0 + t (f - f0)`` from ``t = 0`` (where ``u`` is in equilibrium) to 1: a step
         that fails is halved, one that converged in a few iterations is followed by a longer one."""
         s = self.settings
@@ -263,7 +266,8 @@ class FiniteStrainElasticity:
             step = min(step, 1.0 - load)
             try:
                 t = load + step
-                u_new, state_new = self._newton(u, state, f0 + t * (f - f0), t, rho, simp, solver, report)
+                u_new, state_new = self._newton(u, state, f0 + t * (f - f0), t, rho, simp, solver, report,
+                                                tol=tol)
             except StepFailed as failed:
                 report.cutbacks += 1
                 step *= 0.5
@@ -295,13 +299,13 @@ class FiniteStrainElasticity:
              "residual_history": report.residual_history[-3:]}, state=failed.u)
 
     def _newton(self, u, state, target_f, load: float, rho, simp, solver, report: FiniteStrainReport,
-                patience: int | None = None):
+                patience: int | None = None, tol: float | None = None):
         """Newton to the load ``target_f`` (the step's ``load`` factor, for the log) from ``u`` and its
         element values ``state``; returns ``(u, state)`` or raises :class:`StepFailed` with the
         last iterate. With ``patience`` (a Newton without load steps of its own, whose caller
         continues along a path when it fails) it also stops when the residual has not halved in
         ``patience`` iterations: the large scene's direct attempt at 80 x 40 crawled from 9.9 to 2.5
-        in 25 iterations before failing."""
+        in 25 iterations before failing. ``tol`` replaces ``newton_tol``."""
         s = self.settings
         history: list[float] = []
         report.residual_history.append(history)
@@ -311,7 +315,7 @@ class FiniteStrainElasticity:
             r = self.bc.homogenize(forces - target_f)
             norm = float(np.linalg.norm(r))
             history.append(norm)
-            target = max(s.newton_tol * scale, ROUND_OFF * np.sqrt(self.size) * float(np.linalg.norm(forces)))
+            target = max((s.newton_tol if tol is None else tol) * scale, ROUND_OFF * np.sqrt(self.size) * float(np.linalg.norm(forces)))
             log.info("structure Newton %d (load %.4g): |S| = %.3e, target %.3e", it, load, norm, target)
             if not np.isfinite(norm):
                 raise StepFailed("non-finite residual", u)

@@ -327,11 +327,12 @@ class Flow:
         return solution.w, solution.report
 
     def newton_solve(self, x=None, rho=None, w0=None, params=None,
-                     solver: RecyclingSolver | None = None) -> FlowSolution:
+                     solver: RecyclingSolver | None = None, tol: float | None = None) -> FlowSolution:
         """:meth:`solve` with the converged Jacobian and the solver (``solver``: one whose last
-        factorization may precondition this solve's Newton steps; a new one by default):
+        factorization may precondition this solve's Newton steps; a new one by default; ``tol``:
+        the Newton's tolerance instead of ``fluid.newton_tol``):
         :func:`tofsi.physics.flow_newton.newton_solve`."""
-        return newton_solve(self, x, rho, w0, params, solver)
+        return newton_solve(self, x, rho, w0, params, solver, tol)
 
     def residual_scale(self, x, density) -> float:
         """``|F|`` of the all-fluid state holding only the boundary values: the force scale the

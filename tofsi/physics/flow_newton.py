@@ -56,29 +56,30 @@ class FlowSolution:
 
 
 def newton_solve(flow, x=None, rho=None, w0=None, params=None,
-                 solver: RecyclingSolver | None = None) -> FlowSolution:
+                 solver: RecyclingSolver | None = None, tol: float | None = None) -> FlowSolution:
     """Steady flow of ``flow`` on the mesh moved by ``x`` with densities ``rho``, from ``w0``
     (its fixed values replaced by the boundary values; default: :meth:`Flow.initial
     <tofsi.physics.flow.Flow.initial>`), with the converged Jacobian and the solver
     (``solver``: one whose last factorization may precondition this solve's Newton steps; a
-    new one by default); raises on failure."""
+    new one by default; ``tol``: the tolerance relative to the force scale instead of
+    ``fluid.newton_tol``, for a solve that only starts a coupled Newton); raises on failure."""
     t0 = time.perf_counter()
     report = FlowReport()
     factorize = flow.factorizer(x, rho, params)     # a previous design's factors start; new ones are this design's
     solver = RecyclingSolver(factorize) if solver is None else solver.with_factorize(factorize)
     w = flow.initial(params) if w0 is None else np.where(flow.bc.is_fixed, flow.boundary_values(params), w0)
     try:
-        w, J = newton(flow, w, x, rho, flow.density, report, params, solver)
+        w, J = newton(flow, w, x, rho, flow.density, report, params, solver, tol)
     except NumericalError as first:
         if flow.density == 0.0:
             raise
         log.info("Newton failed at full Reynolds number (%s); continuing from Stokes flow", first)
-        w, J = newton(flow, flow.initial(params), x, rho, 0.0, report, params, solver)
+        w, J = newton(flow, flow.initial(params), x, rho, 0.0, report, params, solver, tol)
         steps = flow.settings.continuation_steps
         for k in range(1, steps + 1):
             density = flow.density * k / steps
             report.continuation.append(density)
-            w, J = newton(flow, w, x, rho, density, report, params, solver)
+            w, J = newton(flow, w, x, rho, density, report, params, solver, tol)
     report.converged = True
     report.wall_time_s = time.perf_counter() - t0
     return FlowSolution(w, report, J, solver)
@@ -93,14 +94,14 @@ def backward_error(J, w, r) -> float:
     return float(np.max(np.abs(r) / (size + floor)))
 
 
-def newton(flow, w, x, rho, density, report: FlowReport, params, solver):
+def newton(flow, w, x, rho, density, report: FlowReport, params, solver, tol: float | None = None):
     """Newton with inexact (Eisenstat-Walker) solves and a backtracking line search whose
     accepted full step's Jacobian is the next iteration's, at fluid density ``density``.
     Converged when ``|F|`` is below ``newton_tol`` times the force scale, or when the
-    componentwise backward error has reached round-off (``ROUND_OFF``). Returns ``w`` and
-    the Jacobian at ``w``."""
+    componentwise backward error has reached round-off (``ROUND_OFF``); ``tol`` replaces
+    ``newton_tol``. Returns ``w`` and the Jacobian at ``w``."""
     s, bc = flow.settings, flow.bc
-    scale = flow.residual_scale(x, density)
+    target = (s.newton_tol if tol is None else tol) * flow.residual_scale(x, density)
     history: list[float] = []
     report.residual_history.append(history)
     J, R = flow.jacobian(w, x, rho, density, params)
@@ -108,11 +109,9 @@ def newton(flow, w, x, rho, density, report: FlowReport, params, solver):
         r = bc.homogenize(R)
         norm = float(np.linalg.norm(r))
         history.append(norm)
-        log.info("flow Newton %d (density %.4g): |R| = %.3e, target %.3e", it, density, norm,
-                 s.newton_tol * scale)
+        log.info("flow Newton %d (density %.4g): |R| = %.3e, target %.3e", it, density, norm, target)
         if not np.isfinite(norm):
             raise NumericalError("flow solve: non-finite residual", {"history": history})
-        target = s.newton_tol * scale
         if norm <= target or backward_error(J, w, r) <= ROUND_OFF:
             return w, J
         if it == s.newton_max_iter:

@@ -60,9 +60,11 @@ class Material:
     def solver(self, rho, simp: SIMP, previous=None):
         raise NotImplementedError
 
-    def solve(self, f, rho, simp: SIMP, guess=None, solver=None, direct=False) -> tuple[np.ndarray, dict | None]:
+    def solve(self, f, rho, simp: SIMP, guess=None, solver=None, direct=False,
+              tol=None) -> tuple[np.ndarray, dict | None]:
         """``(u, report)`` with ``R_int(u) = f``; ``direct``: from the guess without the material's
-        own continuation (a nonlinear one's load steps), failing fast."""
+        own continuation (a nonlinear one's load steps), failing fast; ``tol``: a nonlinear one's
+        Newton tolerance relative to the load instead of its own (a linear one solves exactly)."""
         raise NotImplementedError
 
 
@@ -135,7 +137,7 @@ class SmallStrain(Material):
             return previous                                   # K_s depends on (rho, p) only
         return StiffnessSolver(self, rho, simp)
 
-    def solve(self, f, rho, simp, guess=None, solver=None, direct=False):
+    def solve(self, f, rho, simp, guess=None, solver=None, direct=False, tol=None):
         solver = self.solver(rho, simp) if solver is None else solver
         return solver.solve(None, self.structure.bc.homogenize(f)), None
 
@@ -170,9 +172,9 @@ class FiniteStrain(Material):
             return previous
         return TangentSolver(RecyclingSolver(self.structure.direct))
 
-    def solve(self, f, rho, simp, guess=None, solver=None, direct=False):
+    def solve(self, f, rho, simp, guess=None, solver=None, direct=False, tol=None):
         solver = self.solver(rho, simp) if solver is None else solver
-        solution = self.elasticity.solve(f, rho, simp, guess, solver.recycling, load_steps=not direct)
+        solution = self.elasticity.solve(f, rho, simp, guess, solver.recycling, load_steps=not direct, tol=tol)
         return solution.u, solution.report.as_dict()
 
 
