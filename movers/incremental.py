@@ -54,6 +54,7 @@ import numpy as np
 
 from movers.base import MoveReport, element_apply, quality_record
 from movers.problem import MotionProblem
+from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
 from movers.increment_solvers import MoveSolver
@@ -94,6 +95,7 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
     at = x if at is None else at
     Xe = problem.points[problem.quads] + at.reshape(-1, 2)[problem.quads]
     K0 = element_matrices(Xe)
+    require_finite_matrices(problem, K0, index, report)
     Ke = K0 * problem.stiffening[:, None, None]
     step_p = np.zeros_like(step)
     step_p[bc.fixed] = step[bc.fixed]
@@ -116,6 +118,26 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
         record.matrices.append(K0)
         record.systems.append(A)
     return dx
+
+
+def require_finite_matrices(problem: MotionProblem, K0: np.ndarray, index: int, report: MoveReport) -> None:
+    """A NumericalError naming the quads whose element matrices ``K0`` (Em, 8, 8) are not finite
+    (inverted or degenerate at increment ``index``'s stiffness point: ``det J`` under a fractional
+    power), and where the previous increment left the mesh, before any solve sees them."""
+    finite = np.isfinite(K0).all(axis=(1, 2))
+    if finite.all():
+        return
+    bad = np.sort(problem.element_ids[~finite])
+    after = ""
+    if report.quality:
+        q = report.quality[-1]
+        x, y = q["worst_location"]
+        after = (f"; after increment {index} the worst element is {q['worst_element']} (skewness "
+                 f"{q['min_skewness']:.3g}, {q['n_inverted']} inverted) at ({x:.3g}, {y:.3g}) m")
+    raise NumericalError(f"the element matrices of {bad.size} quad(s) are not finite at the increment's "
+                         f"stiffness point (elements {', '.join(map(str, bad[:5]))}{', ...' if bad.size > 5 else ''}: "
+                         f"inverted or degenerate there) at increment {index + 1}{after}",
+                         {"non_finite_elements": bad.tolist()})
 
 
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,

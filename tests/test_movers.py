@@ -267,3 +267,27 @@ def test_the_amg_path_gives_the_direct_answer(name):
     report = result.report
     if report.linear_solves > 1:        # increments and Newton steps recycle AMG hierarchies
         assert report.factorizations <= report.linear_solves / 2, report
+
+
+def test_a_move_in_increments_whose_element_matrices_break_fails_with_a_diagnosis():
+    """Linear elasticity with ``chi = 1/2`` weights each quad by ``det J^(1/2)``: bent 2 m in 3
+    increments, the first inverts quads, so the second's element matrices are NaN there. The
+    move fails as a NumericalError naming those quads and the worst element the first increment
+    left (it ended in a bare ValueError from GMRES before)."""
+    import tofsi
+    from tofsi.core.errors import NumericalError
+    scene = tofsi.load_scene("examples/scenes/beam_in_channel_optimization_fsi.toml",
+                             ["mesh.h_min=0.1", "mesh.h_max=0.1", "mover.name=linear",
+                              "mover.linear.increments=3", "mover.linear.chi=0.5"])
+    model = tofsi.Problem(scene).model
+    mesh = model.mesh
+    c = mesh.centroids
+    rho = np.where((np.abs(c[:, 0] - 1.0) < 0.15) & (c[:, 1] < 0.6), 0.9, 0.1)
+    X, Y = mesh.points[:, 0], mesh.points[:, 1]
+    bend = np.column_stack([(Y / 0.6) ** 2 * np.exp(-((X - 1.0) / 0.3) ** 2), 0.0 * X]).ravel()
+    with np.errstate(invalid="ignore"), pytest.raises(NumericalError) as failure:
+        model.motion.move(2.0 * bend, rho)
+    message = str(failure.value)
+    assert "linear mover: the element matrices of" in message and "at increment 2" in message
+    assert "after increment 1 the worst element is" in message
+    assert "(elements 117, 118" in message          # by the mesh's numbering, where the first inverted
