@@ -16,21 +16,12 @@ import sys
 import numpy as np
 from petsc4py import PETSc
 
-import tofsi
+from mpi_wall import wall_problem
 from tofsi.core.errors import NumericalError
-from tofsi.coupling.coupled import continuation
-from tofsi.parallel.fsi_problem import DistributedFsiProblem
 
 scene_path, out, overrides = sys.argv[1], sys.argv[2], sys.argv[3:]
-scene = tofsi.load_scene(scene_path, overrides)
-problem = DistributedFsiProblem(scene)
-problem.set_stage(continuation(scene, scene.design.n_stages - 1))
-mesh = problem.model.mesh
-centroids = mesh.centroids[problem.map.design]
-wall = (np.abs(centroids[:, 0] - 1.0) < 0.15) & (centroids[:, 1] < 0.6)
-rho = problem.serial.densities(np.where(wall, 0.9, 0.1))
-X, Y = mesh.points[:, 0], mesh.points[:, 1]
-u = np.column_stack([0.08 * (Y / 0.6) ** 2 * np.exp(-((X - 1.0) / 0.3) ** 2), 0.0 * X]).ravel()
+problem, rho, bend = wall_problem(scene_path, overrides)
+u = 0.08 * bend
 rank = PETSc.COMM_WORLD.getRank()
 try:
     x, lin, report = problem.mover.move(u, rho)
