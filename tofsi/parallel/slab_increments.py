@@ -43,7 +43,7 @@ import numpy as np
 from movers.base import MoveReport, element_apply, quality_record
 from movers.failure import at as place
 from movers.increment_solvers import KEPT_FACTORS_TOL_RATIO
-from movers.incremental import stiffness_points
+from movers.incremental import non_finite_matrices, stiffness_points
 from movers.spring_kernel import DIAGONALS
 from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
@@ -86,11 +86,7 @@ class SlabIncrementMover(SlabMover):
         K0 = kernel(Xe)
         finite = np.isfinite(K0).all(axis=(1, 2))
         if not self.valid_everywhere(finite.all()):      # decided by all ranks: none is left in MUMPS
-            bad = np.concatenate(self.mpi.allgather(d.slab.element_ids[~finite]))
-            raise NumericalError(f"the element matrices of {bad.size} quad(s) are not finite at the increment's "
-                                 f"stiffness point (elements {', '.join(map(str, np.sort(bad)[:5]))}"
-                                 f"{', ...' if bad.size > 5 else ''}: inverted or degenerate there)",
-                                 {"non_finite_elements": np.sort(bad).tolist()})
+            raise non_finite_matrices(np.concatenate(self.mpi.allgather(d.slab.element_ids[~finite])))
         Ke = K0 * d.slab.stiffening[:, None, None]
         step_p = np.where(self.is_fixed, step, 0.0)
         rhs = -self.apply(d, Ke, step_p) if np.any(step_p) else np.zeros_like(step)
