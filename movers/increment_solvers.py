@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from movers.problem import MotionProblem
+from tofsi.core.kept import Kept
 from tofsi.linalg import LinearAlgebra
 from tofsi.linalg.recycling import flexible_gmres
 
@@ -35,11 +36,15 @@ class IncrementSolvers:
     earlier move, or by the store of an earlier move's derivatives
     (:class:`~movers.incremental.IncrementDerivatives`, which gives its factors back here) --,
     else by the factors the move used last (an earlier increment's, as a recycling solver
-    would), from the change increment ``k`` made in the latest move (else the increment
-    before's). Where
-    GMRES needs more than ``max_iter`` iterations the system is factorized; where it needed more
-    than ``refresh_after`` the factors used are not used for that increment again. Factors made at
-    a move's own system serve its store. Results never depend on timing, only on the moves made at
+    would) for at most ``refresh_after`` iterations, from the change increment ``k`` made in the
+    latest move (else the increment before's). Where GMRES needs more than ``max_iter``
+    iterations (``refresh_after`` on an earlier increment's factors) the system is factorized;
+    where it needed more than ``refresh_after`` the factors used are not used for that increment
+    again, and once an earlier increment's factors failed, the move factorizes its increments
+    without factors of their own (increments far apart, as the large scene's 4: 14-18 iterations
+    each on their neighbour's factors, where a factorization costs about 8 and serves the store
+    of the move's derivatives, which would else make it). Factors made at a move's own system
+    serve its store. Results never depend on timing, only on the moves made at
     the design (iteration counts). Which factors a move uses depends on the moves before it, so
     its solver error, unlike a fresh recycling solver's, is not a smooth function of the motion:
     finite differences across moves see it (at ``rtol = 1e-10`` a remainder floor of 1e-11 in
@@ -53,6 +58,7 @@ class IncrementSolvers:
         self.max_iter, self.refresh_after = max_iter, refresh_after
         self.factors: dict[int, object] = {}          # increment -> factors of a system near its own
         self.steps: dict[int, np.ndarray] = {}        # increment -> its change in the latest move
+        self.reference = Kept()     # the first increment's (K0, A) at the reference mesh (movers.incremental)
 
     def move(self) -> "MoveSolver":
         """The solver of one move (its own counts and its latest factors)."""
@@ -72,6 +78,7 @@ class MoveSolver:
         self.bank, self.factorize = bank, bank.factorize
         self.factorizations = self.krylov_iterations = 0
         self.latest = None                             # the factors the move used last
+        self.neighbours = True                         # an earlier increment's factors may serve
 
     def keep(self, factors) -> None:
         self.bank.keep(factors)
@@ -80,24 +87,25 @@ class MoveSolver:
         """``(A^-1 b, factors made at A or None)`` for increment ``k``'s system ``A``."""
         bank = self.bank
         own = bank.factors.get(k)
-        preconditioner = own if own is not None else self.latest
+        preconditioner = own if own is not None else self.latest if self.neighbours else None
         before = bank.steps.get(k)
         if before is not None and before.shape == b.shape:
             guess = before                            # the latest move's: nearer than the increment before
         if preconditioner is not None and preconditioner.shape == A.shape:
             goal = bank.rtol * float(np.linalg.norm(b))
-            x, its = flexible_gmres(A, b, preconditioner.preconditioner(), goal, bank.max_iter, bank.max_iter,
-                                    guess)
+            cap = bank.max_iter if preconditioner is own else bank.refresh_after
+            x, its = flexible_gmres(A, b, preconditioner.preconditioner(), goal, cap, cap, guess)
             self.krylov_iterations += its
             if np.all(np.isfinite(x)) and np.linalg.norm(b - A @ x) <= 1.01 * goal:
                 if its > bank.refresh_after:          # gone stale: factorize the next time instead
-                    if preconditioner is own:
-                        del bank.factors[k]
+                    del bank.factors[k]
                     self.latest = None
                 else:
                     self.latest = preconditioner
                 bank.steps[k] = x
                 return x, None
+            if preconditioner is not own:             # increments too far apart for their neighbours'
+                self.neighbours = False
         made = bank.factorize(A)
         self.factorizations += 1
         bank.factors[k] = self.latest = made
