@@ -56,6 +56,7 @@ from movers.base import MoveReport, element_apply, quality_record
 from movers.failure import at as place
 from movers.problem import MotionProblem
 from tofsi.core.errors import NumericalError
+from tofsi.core.kept import input_key
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
 from movers.increment_solvers import MoveSolver
@@ -94,9 +95,7 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
     :class:`MoveSolver`."""
     bc, dofs = problem.bc, problem.dofs
     at = x if at is None else at
-    Xe = problem.points[problem.quads] + at.reshape(-1, 2)[problem.quads]
-    K0 = element_matrices(Xe)
-    require_finite_matrices(problem, K0, index, report)
+    K0, A = stiffness_and_system(problem, element_matrices, at, blend, solver, index, report)
     Ke = K0 * problem.stiffening[:, None, None]
     step_p = np.zeros_like(step)
     step_p[bc.fixed] = step[bc.fixed]
@@ -105,7 +104,6 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
         rhs = blend.residual(rhs, step, 0.0)      # W (-K_fp d_p) + S_c d
     rhs[bc.fixed] = step[bc.fixed]
     report.linear_solves += 1
-    A = system(bc, Ke, dofs, blend)
     if isinstance(solver, MoveSolver):
         dx, made = solver.solve_increment(index, A, rhs, guess)
     else:
@@ -119,6 +117,28 @@ def increment(problem: MotionProblem, element_matrices: ElementMatrices, x: np.n
         record.matrices.append(K0)
         record.systems.append(A)
     return dx
+
+
+def stiffness_and_system(problem: MotionProblem, element_matrices: ElementMatrices, at: np.ndarray, blend,
+                         solver, index: int, report: MoveReport):
+    """An increment's unscaled element matrices ``K0`` ``(Em, 8, 8)`` at its stiffness point
+    ``at`` (2n,) and its constrained system ``A = W f K0 + S_c`` (:func:`system`). At the
+    reference mesh (``at = 0``: every move's first increment) a :class:`MoveSolver`'s bank keeps
+    them across the moves at its design, keyed by the kernel's ``key`` (its inputs besides the
+    corners: without one, nothing is kept), the corners, the quads, the stiffening and the blend:
+    a Newton's moves at one design skip a quarter of their element matrices and assemblies with
+    the large scene's 4 increments."""
+    Xe = problem.points[problem.quads] + at.reshape(-1, 2)[problem.quads]
+
+    def build():
+        K0 = element_matrices(Xe)
+        require_finite_matrices(problem, K0, index, report)
+        return K0, system(problem.bc, K0 * problem.stiffening[:, None, None], problem.dofs, blend)
+    key = getattr(element_matrices, "key", None)
+    if key is None or not isinstance(solver, MoveSolver) or np.any(at):
+        return build()
+    blended = () if blend is None else (blend.weight, blend.diag)
+    return solver.bank.reference.get(input_key(key, Xe, problem.dofs, problem.stiffening, *blended), build)
 
 
 def non_finite_matrices(bad: np.ndarray, where: str = "") -> NumericalError:
@@ -179,11 +199,15 @@ class IncrementKernel:
     ``extrapolation`` ``a``: where increment ``k >= 1`` takes its stiffness,
     ``y_k = x_k + a (x_k - x_(k-1))`` (:func:`stiffness_points`): 0, the start of the increment
     (forward Euler in the load, the paper's); 1/2, its midpoint extrapolated from the increment
-    before (second order in the increment size at the same one solve per increment)."""
+    before (second order in the increment size at the same one solve per increment). ``key``:
+    the matrices' inputs besides the corners (:func:`~tofsi.core.kept.input_key`), or None; with
+    it the first increment's matrices and system are kept (:func:`stiffness_and_system`)."""
 
-    def __init__(self, matrices: ElementMatrices, force_derivative=None, extrapolation: float = 0.0):
+    def __init__(self, matrices: ElementMatrices, force_derivative=None, extrapolation: float = 0.0,
+                 key: tuple | None = None):
         self.matrices, self.closed_form = matrices, force_derivative
         self.extrapolation = float(extrapolation)
+        self.key = key
 
     def __call__(self, Xe: np.ndarray) -> np.ndarray:
         return self.matrices(Xe)

@@ -46,7 +46,7 @@ class LinearElasticMover(Mover):
         of its forces by complex step)."""
         lam, mu = lame(1.0, self.params.poisson_ratio)
         chi = self.params.chi
-        return IncrementKernel(lambda Xe: element_stiffness(Xe, lam, mu, chi=chi))
+        return IncrementKernel(lambda Xe: element_stiffness(Xe, lam, mu, chi=chi), key=(self.name, lam, mu, chi))
 
     @property
     def path_dependent(self) -> bool:

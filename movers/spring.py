@@ -73,7 +73,7 @@ class SpringMover(Mover):
         split = functools.cache(lambda: self.kept_split.get(input_key(codes), lambda: TriangleSplit(codes)))
         return IncrementKernel(lambda Xe: quad_stiffness(Xe, split(), tsc),
                                lambda Xe, v: quad_force_derivative(Xe, v, split(), tsc),
-                               EXTRAPOLATION[self.params.scheme])
+                               EXTRAPOLATION[self.params.scheme], key=input_key(self.name, codes, tsc))
 
     @property
     def path_dependent(self) -> bool:
