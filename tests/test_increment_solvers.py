@@ -3,7 +3,8 @@
 
 Truths: a move preconditioned by the kept factors is the move solved to round-off (linear_tol 1e-15), to
 the kept factors' tolerance; the store of a move's derivatives hands its factors over, after which a
-nearby move (a Newton iterate's) factorizes nothing; and its tangent is the fresh move's.
+nearby move (a Newton iterate's) factorizes nothing and makes its first increment's system (at the reference
+mesh) no more; and its tangent is the fresh move's.
 """
 
 import numpy as np
@@ -29,6 +30,7 @@ def test_kept_factors_give_the_fresh_move_and_spare_the_later_moves_factorizatio
     again = mover.move(problem, nearby, solver=kept)
     fresh = movers.create(name, increments=4, linear_tol=1e-15, **IN_INCREMENTS[name]).move(problem, nearby)
     assert again.report.factorizations == 0 and fresh.report.factorizations >= 1   # teeth
+    assert kept.reference.builds == 1        # the first increment's matrices and system: kept, not made again
     scale = np.abs(fresh.displacement).max()
     assert np.abs(again.displacement - fresh.displacement).max() <= 1e-12 * scale
     du = np.random.default_rng(3).normal(size=u.shape)
