@@ -58,6 +58,7 @@ class IncrementSolvers:
         self.max_iter, self.refresh_after = max_iter, refresh_after
         self.factors: dict[int, object] = {}          # increment -> factors of a system near its own
         self.steps: dict[int, np.ndarray] = {}        # increment -> its change in the latest move
+        self.made_at: dict[int, object] = {}          # increment -> the system its factors were made at here
         self.reference = Kept()     # the first increment's (K0, A) at the reference mesh (movers.incremental)
 
     def move(self) -> "MoveSolver":
@@ -66,7 +67,10 @@ class IncrementSolvers:
 
     def keep(self, factors) -> None:
         """Take the factors a store made (per increment, exact at its move's systems)."""
-        self.factors.update({k: f for k, f in enumerate(factors) if f is not None})
+        for k, f in enumerate(factors):
+            if f is not None and f is not self.factors.get(k):
+                self.factors[k] = f
+                self.made_at.pop(k, None)
 
 
 class MoveSolver:
@@ -84,9 +88,14 @@ class MoveSolver:
         self.bank.keep(factors)
 
     def solve_increment(self, k: int, A, b: np.ndarray, guess=None):
-        """``(A^-1 b, factors made at A or None)`` for increment ``k``'s system ``A``."""
+        """``(A^-1 b, factors made at A or None)`` for increment ``k``'s system ``A`` (a system the
+        bank's factors were made at, the kept first increment's, by them directly)."""
         bank = self.bank
         own = bank.factors.get(k)
+        if own is not None and bank.made_at.get(k) is A:     # made at this very system (the kept first increment's)
+            bank.steps[k] = x = own.solve(b)
+            self.latest = own
+            return x, own
         preconditioner = own if own is not None else self.latest if self.neighbours else None
         before = bank.steps.get(k)
         if before is not None and before.shape == b.shape:
@@ -99,6 +108,7 @@ class MoveSolver:
             if np.all(np.isfinite(x)) and np.linalg.norm(b - A @ x) <= 1.01 * goal:
                 if its > bank.refresh_after:          # gone stale: factorize the next time instead
                     del bank.factors[k]
+                    bank.made_at.pop(k, None)
                     self.latest = None
                 else:
                     self.latest = preconditioner
@@ -109,6 +119,7 @@ class MoveSolver:
         made = bank.factorize(A)
         self.factorizations += 1
         bank.factors[k] = self.latest = made
+        bank.made_at[k] = A
         bank.steps[k] = x = made.solve(b)
         return x, made
 
