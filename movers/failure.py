@@ -1,5 +1,6 @@
 """What a failed move says: the element a trial step inverts (by the mesh's numbering), or that
-none did; locations rounded for messages."""
+none did; the quads whose element matrices are not finite at an increment's stiffness point;
+locations rounded for messages."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tofsi.core.errors import NumericalError
 from tofsi.mesh import quality
 
 
@@ -52,3 +54,29 @@ class Trouble:
 
     def __str__(self) -> str:
         return self.text
+
+
+def non_finite_matrices(bad: np.ndarray, where: str = "") -> NumericalError:
+    """The error of an increment whose element matrices are not finite on the quads ``bad`` (mesh
+    numbering): inverted or degenerate at its stiffness point (``det J`` under a fractional
+    power); ``where`` is added to the message (serial moves and moves by slabs say the same)."""
+    bad = np.sort(np.asarray(bad))
+    return NumericalError(f"the element matrices of {bad.size} quad(s) are not finite at the increment's "
+                          f"stiffness point (elements {', '.join(map(str, bad[:5]))}{', ...' if bad.size > 5 else ''}: "
+                          f"inverted or degenerate there){where}", {"non_finite_elements": bad.tolist()})
+
+
+def require_finite_matrices(problem, K0: np.ndarray, index: int, report) -> None:
+    """Raise :func:`non_finite_matrices` where increment ``index``'s element matrices ``K0``
+    (Em, 8, 8) of the :class:`~movers.problem.MotionProblem` ``problem`` are not finite, with where
+    the previous increment left the mesh (the move's :class:`~movers.base.MoveReport` ``report``),
+    before any solve sees them."""
+    finite = np.isfinite(K0).all(axis=(1, 2))
+    if finite.all():
+        return
+    after = ""
+    if report.quality:
+        q = report.quality[-1]
+        after = (f"; after increment {index} the worst element is {q['worst_element']} (skewness "
+                 f"{q['min_skewness']:.3g}, {q['n_inverted']} inverted) at {at(q['worst_location'])}")
+    raise non_finite_matrices(problem.element_ids[~finite], f" at increment {index + 1}{after}")

@@ -53,9 +53,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from movers.base import MoveReport, element_apply, quality_record
-from movers.failure import at as place
+from movers.failure import require_finite_matrices
 from movers.problem import MotionProblem
-from tofsi.core.errors import NumericalError
 from tofsi.core.kept import input_key
 from tofsi.fem.assembly import assemble_vector
 from tofsi.fem.complex_step import corner_derivatives
@@ -139,31 +138,6 @@ def stiffness_and_system(problem: MotionProblem, element_matrices: ElementMatric
         return build()
     blended = () if blend is None else (blend.weight, blend.diag)
     return solver.bank.reference.get(input_key(key, Xe, problem.dofs, problem.stiffening, *blended), build)
-
-
-def non_finite_matrices(bad: np.ndarray, where: str = "") -> NumericalError:
-    """The error of an increment whose element matrices are not finite on the quads ``bad`` (mesh
-    numbering): inverted or degenerate at its stiffness point (``det J`` under a fractional
-    power); ``where`` is added to the message (serial moves and moves by slabs say the same)."""
-    bad = np.sort(np.asarray(bad))
-    return NumericalError(f"the element matrices of {bad.size} quad(s) are not finite at the increment's "
-                          f"stiffness point (elements {', '.join(map(str, bad[:5]))}{', ...' if bad.size > 5 else ''}: "
-                          f"inverted or degenerate there){where}", {"non_finite_elements": bad.tolist()})
-
-
-def require_finite_matrices(problem: MotionProblem, K0: np.ndarray, index: int, report: MoveReport) -> None:
-    """Raise :func:`non_finite_matrices` where increment ``index``'s element matrices ``K0``
-    (Em, 8, 8) are not finite, with where the previous increment left the mesh, before any solve
-    sees them."""
-    finite = np.isfinite(K0).all(axis=(1, 2))
-    if finite.all():
-        return
-    after = ""
-    if report.quality:
-        q = report.quality[-1]
-        after = (f"; after increment {index} the worst element is {q['worst_element']} (skewness "
-                 f"{q['min_skewness']:.3g}, {q['n_inverted']} inverted) at {place(q['worst_location'])}")
-    raise non_finite_matrices(problem.element_ids[~finite], f" at increment {index + 1}{after}")
 
 
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,

@@ -41,9 +41,9 @@ import time
 import numpy as np
 
 from movers.base import MoveReport, element_apply, quality_record
-from movers.failure import at as place
+from movers.failure import at as place, non_finite_matrices
 from movers.increment_solvers import KEPT_FACTORS_TOL_RATIO
-from movers.incremental import non_finite_matrices, stiffness_points
+from movers.incremental import stiffness_points
 from movers.spring_kernel import DIAGONALS
 from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
