@@ -259,14 +259,22 @@ class BlockSystem:
         """Fill the fields of the cycle ``comp`` that have no guess: one sweep in order (each block
         solved with the latest values of the others, absent ones at their initial value;
         ``direct``: without the blocks' own continuation; ``tol``: each block that takes one
-        solved to that scaled residual only, ``FieldBlock.takes_tolerance``)."""
+        solved to that scaled residual only, ``FieldBlock.takes_tolerance``). A block's failure
+        leaves the fields solved before it on the error (``solved``: a failed direct attempt's flow
+        starts the inflow ramp, :mod:`tofsi.coupling.load_ramp`)."""
         if all(fields[n] is not None for n in comp):
             return
         for name in comp:
             if fields[name] is None:
                 fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
+        solved = {}
         for name in comp:
-            fields[name] = self._solve_block(name, fields, state, progress, direct=direct, tol=tol)
+            try:
+                fields[name] = self._solve_block(name, fields, state, progress, direct=direct, tol=tol)
+            except NumericalError as err:
+                err.solved = solved         # the fields this sweep solved before it failed
+                raise
+            solved[name] = fields[name]
 
     def _partitioned(self, comp, fields, state, progress, direct=False, tol=None) -> None:
         s = self.settings

@@ -31,7 +31,9 @@ factorization, its Newton and GMRES counts as before). A solve looser than the s
 step short of its end) that starts with a sweep (from rest) solves each block that takes a
 tolerance (the flow, a finite-strain structure) to ``SWEEP_TOL`` of its force scale only: the
 sweep only starts the Newton (at 80 x 40 from rest: 1 flow Newton step, not 3; 6 structure
-steps, not 10; the monolithic Newton's 3 steps as before). It reports its history and raises
+steps, not 10; the monolithic Newton's 3 steps as before); so does the sweep of a direct attempt
+(``direct``: from a one-way state, whose Newton goes on to the problem's tolerance, or fails and
+leaves its flow to the inflow ramp; the large scene's flow there: 1 Newton step, not 2). It reports its history and raises
 :class:`~tofsi.core.errors.NumericalError` when it does not converge.
 
 The block system (:class:`~tofsi.coupling.block_system.BlockSystem`) gives the
@@ -85,7 +87,7 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
     s = system.settings
     tol = s.tol if tol is None else tol
     rho, params = state.rho, state.params
-    system.start(comp, fields, state, direct=direct, tol=SWEEP_TOL if tol > s.tol else None)
+    system.start(comp, fields, state, direct=direct, tol=SWEEP_TOL if tol > s.tol or direct else None)
     solver = system.linear_solver(comp)
     if recycled is not None:
         solver = recycled.with_factorize(solver.factorize)
