@@ -261,3 +261,45 @@ def test_a_failed_direct_attempt_leaves_its_flow_which_solves_the_full_inflow_at
     scale = block.residual_scale(fields, rho, params, lin)
     assert np.linalg.norm(block.residual(fields, rho, params)) <= SWEEP_TOL * scale
     np.testing.assert_allclose(fields["w"][block.fixed], problem.model.flow.boundary_values(params)[block.fixed])
+
+
+class _Recorded:
+    """A stand-in block whose residual is fixed (``value`` per unit of its scale) and whose
+    evaluations are counted."""
+
+    def __init__(self, name, size, value, calls):
+        self.name, self.size, self.value, self.calls = name, size, value, calls
+
+    def residual(self, values, rho, params):
+        self.calls.append(self.name)
+        return np.array([self.value, 0.0])
+
+    def linearize(self, values, rho, params):
+        block = self
+
+        class Lin:
+            @property
+            def residual(self):
+                return block.residual(values, rho, params)
+        return Lin()
+
+
+def test_a_line_search_trial_over_its_bound_skips_the_largest_block():
+    """The merit of a monolithic Newton's trial: the largest scaled residual (hand values), the
+    blocks evaluated smallest first; once one reaches the bound (the merit a trial must fall
+    below) the flow-sized block is never evaluated and no linearizations are returned; a
+    non-finite residual is inf."""
+    from tofsi.coupling.monolithic import scaled_merit
+    calls = []
+    blocks = [_Recorded("w", 100, 0.3, calls), _Recorded("u", 10, 4.0, calls), _Recorded("x", 10, 1.0, calls)]
+    scales = [1.0, 2.0, 4.0]                                          # scaled: w 0.3, u 2.0, x 0.25
+    value, lins = scaled_merit(blocks, scales, {}, None, None, linearize=True)
+    assert value == 2.0 and set(lins) == {"w", "u", "x"} and calls == ["u", "x", "w"]
+    calls.clear()
+    value, lins = scaled_merit(blocks, scales, {}, None, None, linearize=True, bound=1.5)
+    assert value == 2.0 and lins is None and calls == ["u"]          # rejected: the flow never touched
+    calls.clear()
+    value, _ = scaled_merit(blocks, scales, {}, None, None, bound=2.5)
+    assert value == 2.0 and calls == ["u", "x", "w"]                 # under the bound: every block
+    blocks[2].value = np.nan
+    assert scaled_merit(blocks, scales, {}, None, None)[0] == np.inf
