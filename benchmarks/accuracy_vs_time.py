@@ -138,7 +138,7 @@ def report(out: Path, data: Path) -> None:
                   f"{timing_spread(rows):.0f} %, the resolution of these sub-second timings.", ""]
         for problem in MOVER_PROBLEMS:
             fig, axes = plt.subplots(1, 3, figsize=(14, 3.8), dpi=100)
-            for ax, mover in zip(axes, MOVER_SETTINGS):
+            for ax, mover in zip(axes, MOVER_SETTINGS, strict=True):
                 sel = [r for r in rows if r["problem"] == problem and r["mover"] == mover and r["study"] == "parameter"]
                 pareto(ax, sel, "time_s", "error", "parameter", f"{mover}: {sel[0]['parameter']}")
             name = f"movers_{problem.replace(' ', '_')}.png"
@@ -214,7 +214,7 @@ def element_lines(rows: list[dict], data: Path, rel: Path) -> list[str]:
     """The elements study: a Pareto plot per problem, the table, and the errors at equal time."""
     from tofsi.runs.plotting import pareto, plt, save
     fig, axes = plt.subplots(1, len(ELEMENT_PROBLEMS), figsize=(14, 3.8), dpi=100)
-    for ax, problem in zip(axes, ELEMENT_PROBLEMS):
+    for ax, problem in zip(axes, ELEMENT_PROBLEMS, strict=True):
         pareto(ax, [r for r in rows if r["problem"] == problem], "time_s", "error", "element",
                f"{problem}: error vs time (mesh refinement)")
     save(fig, data / "elements.png")

@@ -79,13 +79,13 @@ def main(argv=None) -> dict:
             load = fraction * f
             pairs = []
             for _ in range(args.repeat):
-                t_lin, u_lin = timed(lambda: linear.factorize(rho, params).solve(linear.bc.homogenize(load)))
-                t_nh, sol = timed(lambda: finite.material().elasticity.solve(load, rho, simp))
+                t_lin, u_lin = timed(lambda load=load: linear.factorize(rho, params).solve(linear.bc.homogenize(load)))
+                t_nh, sol = timed(lambda load=load: finite.material().elasticity.solve(load, rho, simp))
                 pairs.append((t_lin, t_nh))
             t_lin, t_nh = np.median(np.array(pairs), axis=0)
             ratio = float(np.median([b / a for a, b in pairs]))
             near = finite.material().elasticity.solve(0.95 * load, rho, simp).u
-            warm = [timed(lambda: finite.material().elasticity.solve(load, rho, simp, guess=near)) for _ in range(args.repeat)]
+            warm = [timed(lambda load=load, near=near: finite.material().elasticity.solve(load, rho, simp, guess=near)) for _ in range(args.repeat)]
             t_warm = float(np.median([t for t, _ in warm]))
             report = sol.report
             rows.append({"fraction": fraction,

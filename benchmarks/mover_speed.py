@@ -132,7 +132,7 @@ def plot(rows, path) -> None:
 
     from tofsi.runs.plotting import plt, save
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110, sharey=True)
-    for ax, solver in zip(axes, ("direct", "amg")):
+    for ax, solver in zip(axes, ("direct", "amg"), strict=True):
         sel = [r for r in rows if r["solver"] == solver]
         if not sel:
             continue

@@ -144,7 +144,7 @@ def pictures(problem: str, variants, output: Path, out: Path) -> Path:
     """The variants' designs side by side (black: solid), one panel each."""
     from tofsi.runs.plotting import plt, save
     fig, axes = plt.subplots(1, len(variants), figsize=(3.3 * len(variants), 3.4), dpi=100, squeeze=False)
-    for ax, variant in zip(axes[0], variants):
+    for ax, variant in zip(axes[0], variants, strict=True):
         p = final_problem(problem, variant)
         rho = p.densities(np.load(folder(output, problem, variant) / "design.npy"))
         m = p.model.mesh

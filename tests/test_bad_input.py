@@ -337,7 +337,7 @@ def test_two_runs_started_at_once_into_one_folder_one_is_refused(tmp_path):
                              cwd=tmp_path, stderr=subprocess.PIPE, text=True) for vf in (0.2, 0.3)]
     results = [(p.wait(), p.stderr.read()) for p in runs]
     assert sorted(status for status, _ in results) == [0, 2], results
-    winner = [vf for vf, (status, _) in zip((0.2, 0.3), results) if status == 0][0]
+    winner = [vf for vf, (status, _) in zip((0.2, 0.3), results, strict=True) if status == 0][0]
     loser = [err for status, err in results if status == 2][0]
     assert len(loser.strip().splitlines()) == 1 and "tofsi optimize" in loser
     record = json.loads((tmp_path / "out" / "run.json").read_text())

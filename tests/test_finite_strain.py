@@ -47,7 +47,7 @@ def edge_traction(mesh, side, traction):
     order = np.argsort(coord)
     nodes, coord = nodes[order], coord[order]
     f = np.zeros((mesh.n_nodes, 2))
-    for a, b, length in zip(nodes[:-1], nodes[1:], np.diff(coord)):
+    for a, b, length in zip(nodes[:-1], nodes[1:], np.diff(coord), strict=True):
         f[[a, b]] += 0.5 * length * np.asarray(traction)
     return f.ravel()
 

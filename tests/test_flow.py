@@ -53,7 +53,7 @@ def test_manufactured_solution_converges_at_taylor_hood_rates(moved):
         errs.append(errors(flow, w, exact, x))
         hs.append(1.0 / n)
     e = np.array(errs)
-    for column, expected in zip(e.T, (3.0, 2.0, 2.0)):       # velocity L2, H1, pressure L2
+    for column, expected in zip(e.T, (3.0, 2.0, 2.0), strict=True):       # velocity L2, H1, pressure L2
         assert np.all(np.abs(rates(column, hs) - expected) < 0.1), (e, rates(column, hs))
 
 
@@ -68,7 +68,7 @@ def test_navier_stokes_manufactured_solution_converges():
         assert report.newton_iterations >= 2
         errs.append(errors(flow, w, exact))
         hs.append(1.0 / n)
-    for column, expected in zip(np.array(errs).T, (3.0, 2.0, 2.0)):
+    for column, expected in zip(np.array(errs).T, (3.0, 2.0, 2.0), strict=True):
         assert np.all(np.abs(rates(column, hs) - expected) < 0.1)
 
 
@@ -83,7 +83,7 @@ def test_kovasznay_flow_converges_at_the_expected_rates():
         errs.append(errors(flow, w, exact))
         hs.append(0.5 / k)
     e = np.array(errs)
-    for column, expected in zip(e.T, (3.0, 2.0, 2.0)):
+    for column, expected in zip(e.T, (3.0, 2.0, 2.0), strict=True):
         assert np.all(np.abs(rates(column, hs) - expected) < 0.1), (e, rates(column, hs))
 
 

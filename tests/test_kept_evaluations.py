@@ -71,7 +71,7 @@ def fresh_flow(model, change) -> Flow:
 def same(a, b):
     if isinstance(a, tuple):
         assert len(a) == len(b)
-        for u, v in zip(a, b):
+        for u, v in zip(a, b, strict=True):
             same(u, v)
     elif a is None:
         assert b is None

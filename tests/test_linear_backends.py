@@ -104,7 +104,7 @@ def test_analysis_once_per_pattern(systems, name):
     assert backend.analyses - before[0] == 3                   # another ordering: another analysis
     # factorizations alive at the same time each keep their own values
     solvers = [DirectSolver(A, perm=perm, backend=name) for A in (A0, A1, A0)]
-    for S, A in zip(solvers, (A0, A1, A0)):
+    for S, A in zip(solvers, (A0, A1, A0), strict=True):
         assert np.linalg.norm(A @ S.solve(b) - b) <= 1e-10 * np.linalg.norm(b)
 
 
@@ -145,7 +145,7 @@ def test_recycling_solver_on_every_backend(systems):
     b = np.random.default_rng(1).standard_normal(A0.shape[0])
     ref = DirectSolver(A1, perm=perm, backend="superlu")
     for name in backends.available():
-        rec = RecyclingSolver(lambda A: DirectSolver(A, perm=perm, backend=name))
+        rec = RecyclingSolver(lambda A, name=name: DirectSolver(A, perm=perm, backend=name))
         rec.refresh(A0)
         x, xt = rec.solve(A1, b), rec.solve_transpose(A1, b)
         assert np.linalg.norm(A1 @ x - b) <= 1.01e-10 * np.linalg.norm(b)

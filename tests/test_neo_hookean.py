@@ -183,7 +183,7 @@ def test_plane_strain_uniaxial_stress_against_the_closed_form():
         guess = np.zeros(block.n)
         guess[0::2] = (stretch - 1.0) * mesh.points[:, 0]              # the axial stretch, no contraction
         u, r = block.solve(np.zeros(block.n), u_fixed, guess)
-        l2 = brentq(lambda t: mu * (t - 1 / t) + lam * math.log(stretch * t) / t, 0.2, 5.0)
+        l2 = brentq(lambda t, stretch=stretch: mu * (t - 1 / t) + lam * math.log(stretch * t) / t, 0.2, 5.0)
         top = mesh.side_nodes("top")
         np.testing.assert_allclose(u[2 * top + 1], (l2 - 1.0) * 1.0, rtol=1e-10)
         P11 = mu * (stretch - 1 / stretch) + lam * math.log(stretch * l2) / stretch

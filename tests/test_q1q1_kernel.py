@@ -61,7 +61,7 @@ def test_jacobian_is_the_oracles_exact_derivative_tau_included(density, symmetri
     _, Ke = kernel(Xe, ve, pe, alpha, density, symmetric, with_force)
     f = force if with_force else None
     for e in range(len(Xe)):
-        ref = complex_step(lambda s: oracle(Xe[e], s[:8].reshape(4, 2), s[8:], alpha[e], density, 0.7,
+        ref = complex_step(lambda s, e=e: oracle(Xe[e], s[:8].reshape(4, 2), s[8:], alpha[e], density, 0.7,
                                             symmetric, f), np.concatenate([ve[e].ravel(), pe[e]]))
         np.testing.assert_allclose(Ke[e], ref, rtol=0, atol=1e-11 * np.abs(ref).max())
 
@@ -91,7 +91,7 @@ def test_friction_partial_includes_tau(density):
     alpha = alpha + 10.0                                       # away from alpha = 0 (tau's kink-free anyway)
     dR = alpha_partial(Xe, ve, pe, alpha, density, 0.7, True, batch_force(map_points(Xe, POINTS)))
     for e in range(len(Xe)):
-        ref = complex_step(lambda a: oracle(Xe[e], ve[e], pe[e], a[0], density, 0.7, True, force),
+        ref = complex_step(lambda a, e=e: oracle(Xe[e], ve[e], pe[e], a[0], density, 0.7, True, force),
                            np.array([alpha[e]]))[:, 0]
         np.testing.assert_allclose(dR[e], ref, rtol=0, atol=1e-11 * np.abs(ref).max())
     rng = np.random.default_rng(2)
@@ -110,7 +110,7 @@ def test_shape_derivatives_match_the_oracle_and_pass_the_taylor_test(density):
     at = lambda X: batch_force(map_points(X, POINTS))
     Re, dR = shape_derivatives(Xe, ve, pe, alpha, density, 0.7, True, at)
     for e in range(len(Xe)):
-        ref = complex_step(lambda X: oracle(X.reshape(4, 2), ve[e], pe[e], alpha[e], density, 0.7, True, force),
+        ref = complex_step(lambda X, e=e: oracle(X.reshape(4, 2), ve[e], pe[e], alpha[e], density, 0.7, True, force),
                            Xe[e].ravel())
         np.testing.assert_allclose(dR[e], ref, rtol=0, atol=1e-10 * np.abs(ref).max())
     rng = np.random.default_rng(3)

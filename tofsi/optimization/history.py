@@ -7,7 +7,7 @@ and ``None`` in a row (a blank CSV cell, JSON null): no result file holds a NaN.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 
 
 @dataclass
@@ -36,7 +36,7 @@ class Iteration:
     def row(self) -> dict:
         """The history row: NaN where a quantity does not apply (the mesh did not move, no
         skewness bound) becomes None (a blank CSV cell, JSON null); every other value is finite."""
-        row = asdict(self)
+        row = {name: getattr(self, name) for name in FIELDS}     # flat: no deep copy (asdict's)
         for key in NOT_APPLICABLE:
             if row[key] != row[key]:
                 row[key] = None
@@ -48,5 +48,6 @@ class Iteration:
         return cls(**{k: float("nan") if v is None and k in NOT_APPLICABLE else v for k, v in row.items()})
 
 
+FIELDS = tuple(f.name for f in fields(Iteration))
 NOT_APPLICABLE = ("min_skewness", "min_area_change", "max_area_change", "max_interface_gap",
                   "skewness_constraint")

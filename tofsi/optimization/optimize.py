@@ -67,7 +67,7 @@ from tofsi.optimization.history import Iteration
 from tofsi.optimization.nlopt_stage import INITIAL_STEP, run_stage, settled
 from tofsi.optimization.oc import oc_step
 from tofsi.optimization.protocol import Evaluation, FailedEvaluation
-from tofsi.runs.output import atomic_write, write_csv, write_json
+from tofsi.runs.output import atomic_write, write_csv, write_json, write_json_rows
 from tofsi.optimization.stages import StageRun, StageStartFailed, bridge
 
 log = logging.getLogger(__name__)
@@ -159,6 +159,7 @@ class Optimizer:
                        params.brinkman_q, time.perf_counter() - self._t0 if elapsed is None else elapsed,
                        stage.coupling or self.scene.effects.coupling, *entry.quality,
                        float(g[1]) if len(g) > 1 else float("nan"), self.fallbacks, *entry.ramp)
+        require_finite(it.row(), f"the history row of design iteration {it.iteration}")
         self.history.append(it)
         if entry.state is not None:                    # computed now (not replayed): save
             self._write_history()                      # the small results first: a full disk
@@ -341,10 +342,9 @@ class Optimizer:
         return oc_step(gamma, entry.df, dvolume, p.phase_fraction, d.volume_fraction, solid, move)
 
     def _write_history(self) -> None:
-        rows = [h.row() for h in self.history]
-        require_finite(rows, "the history")
+        rows = [h.row() for h in self.history]          # each checked finite when recorded
         write_csv(self.output / "history.csv", rows)
-        write_json(self.output / "history.json", rows)
+        write_json_rows(self.output / "history.json", rows)
 
     def _write_design(self, gamma: np.ndarray) -> None:
         """``design.npy``: the design variables of the latest iteration (the final design once

@@ -33,30 +33,27 @@ def default_output(scene_name: str) -> Path:
     return Path("results") / scene_name
 
 
-class _Encoder(json.JSONEncoder):
-    def default(self, o):
-        if isinstance(o, np.integer):
-            return int(o)
-        if isinstance(o, np.floating):
-            return float(o)
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        if isinstance(o, Path):
-            return str(o)
-        return super().default(o)
+def _plain(value):
+    """``value`` as JSON's own types: numpy scalars and arrays as numbers and lists, paths as
+    text, a non-finite float as None (JSON null)."""
+    if isinstance(value, dict):
+        return {k: _plain(x) for k, x in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(x) for x in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, Path):
+        return str(value)
+    return value
 
 
 def to_json(obj) -> str:
     """JSON text of results (numpy scalars and arrays allowed; NaN written as null)."""
-    def clean(v):
-        if isinstance(v, float) and not np.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [clean(x) for x in v]
-        return v
-    return json.dumps(clean(json.loads(json.dumps(obj, cls=_Encoder))), indent=2)
+    return json.dumps(_plain(obj), indent=2, allow_nan=False)
 
 
 def atomic_write(path: str | Path, write) -> Path:
@@ -89,6 +86,14 @@ def write_text(path, text: str) -> Path:
 
 def write_json(path, obj) -> Path:
     return write_text(path, to_json(obj) + "\n")
+
+
+def write_json_rows(path, rows: list[dict]) -> Path:
+    """A JSON list of finite records, one record per line (a run's history: every row again at
+    each iteration, so the compact C encoder, not :func:`to_json`'s indented one; a non-finite
+    number raises ValueError)."""
+    lines = (json.dumps(row, allow_nan=False, default=_plain) for row in rows)
+    return write_text(path, "[\n" + ",\n".join(lines) + "\n]\n" if rows else "[]\n")
 
 
 def write_csv(path, rows: list[dict]) -> Path:
