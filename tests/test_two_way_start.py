@@ -267,8 +267,8 @@ class _Recorded:
     """A stand-in block whose residual is fixed (``value`` per unit of its scale) and whose
     evaluations are counted."""
 
-    def __init__(self, name, size, value, calls):
-        self.name, self.size, self.value, self.calls = name, size, value, calls
+    def __init__(self, name, size, inputs, value, calls):
+        self.name, self.size, self.inputs, self.value, self.calls = name, size, inputs, value, calls
 
     def residual(self, values, rho, params):
         self.calls.append(self.name)
@@ -285,21 +285,23 @@ class _Recorded:
 
 
 def test_a_line_search_trial_over_its_bound_skips_the_largest_block():
-    """The merit of a monolithic Newton's trial: the largest scaled residual (hand values), the
-    blocks evaluated smallest first; once one reaches the bound (the merit a trial must fall
-    below) the flow-sized block is never evaluated and no linearizations are returned; a
+    """The merit of a monolithic Newton's trial: the largest scaled residual (hand values). The
+    mesh (small, reading only the structure) is evaluated first, then the flow and the structure
+    in their order (the structure's load reads the flow's pass); once one reaches the bound (the
+    merit a trial must fall below) the rest are skipped and no linearizations are returned; a
     non-finite residual is inf."""
     from tofsi.coupling.monolithic import scaled_merit
     calls = []
-    blocks = [_Recorded("w", 100, 0.3, calls), _Recorded("u", 10, 4.0, calls), _Recorded("x", 10, 1.0, calls)]
-    scales = [1.0, 2.0, 4.0]                                          # scaled: w 0.3, u 2.0, x 0.25
+    blocks = [_Recorded("w", 100, ("x",), 0.3, calls), _Recorded("u", 10, ("w", "x"), 0.5, calls),
+              _Recorded("x", 10, ("u",), 8.0, calls)]
+    scales = [1.0, 2.0, 4.0]                                          # scaled: w 0.3, u 0.25, x 2.0
     value, lins = scaled_merit(blocks, scales, {}, None, None, linearize=True)
-    assert value == 2.0 and set(lins) == {"w", "u", "x"} and calls == ["u", "x", "w"]
+    assert value == 2.0 and set(lins) == {"w", "u", "x"} and calls == ["x", "w", "u"]
     calls.clear()
     value, lins = scaled_merit(blocks, scales, {}, None, None, linearize=True, bound=1.5)
-    assert value == 2.0 and lins is None and calls == ["u"]          # rejected: the flow never touched
+    assert value == 2.0 and lins is None and calls == ["x"]          # rejected: the flow never touched
     calls.clear()
     value, _ = scaled_merit(blocks, scales, {}, None, None, bound=2.5)
-    assert value == 2.0 and calls == ["u", "x", "w"]                 # under the bound: every block
-    blocks[2].value = np.nan
+    assert value == 2.0 and calls == ["x", "w", "u"]                 # under the bound: every block
+    blocks[1].value = np.nan
     assert scaled_merit(blocks, scales, {}, None, None)[0] == np.inf

@@ -188,10 +188,13 @@ class BlockSystem:
 
     def ordering(self, names) -> np.ndarray | None:
         """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid);
-        computed once per tuple of names (the blocks' grids never change)."""
+        computed once per tuple of names (the blocks' grids never change). One block's is its
+        physics' own where it keeps one (:meth:`FieldBlock.ordering`: the same permutation, made
+        once for both; 0.15 s at 160 x 80 for the flow, the structure and the mesh)."""
         names = tuple(names)
         if names not in self._orderings:
-            self._orderings[names] = self._nested_dissection(names)
+            own = self.by_name[names[0]].ordering() if len(names) == 1 else None
+            self._orderings[names] = own if own is not None else self._nested_dissection(names)
         return self._orderings[names]
 
     def _nested_dissection(self, names) -> np.ndarray | None:
