@@ -163,8 +163,8 @@ class SolverSettings:
                                    "robust on a shared machine; 0: leave as the environment says)")
     adjoint_tol: float = option(TRANSPOSE_TOL, gt=0, lt=1e-2,
                                 doc="iterative path: relative tolerance (scaled residual) of the flow's "
-                                    "transposed GMRES, the adjoint's solve; 1e-6 leaves the gradient "
-                                    "about 1e-6-2e-5 off the LU's and the optimization at the direct "
+                                    "transposed GMRES, the adjoint's solve; 3e-6 leaves the gradient "
+                                    "about 3e-6-2.5e-5 off the LU's and the optimization at the direct "
                                     "path's design (docs/parallel.md); tofsi check-gradients uses 1e-10. "
                                     "The direct backends solve exactly")
     max_memory_gb: float = option(0.0, ge=0, doc="refuse a solve whose estimated memory exceeds "
