@@ -103,7 +103,7 @@ def ramped(solve: Solve, params: Continuation, guess: State | None, min_step: fl
     except NumericalError as direct:
         first_failure = str(direct)     # the message only: the exception's traceback would hold
                                         # this frame (a cycle keeping the failed attempt's states)
-        reached = {name: value for name, value in getattr(direct, "solved", {}).items() if name in inflow_fields}
+        reached = {name: value for name, value in direct.solved.items() if name in inflow_fields}
     if _solved_elsewhere(guess, fields, rho):
         log.info("coupled solve failed from the previous design's state (%s); continuing in the densities "
                  "from that design's", first_failure)
