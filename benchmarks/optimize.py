@@ -182,25 +182,25 @@ def main() -> None:
         optimizer.run()
         if profiler:
             profiler.disable()
-    per_iteration = [b - a for a, b in zip(stamps[:-1], stamps[1:])]
+    per_iteration = [b - a for a, b in zip(stamps[:-1], stamps[1:], strict=True)]
     n = len(per_iteration)
     mean = lambda xs: sum(xs) / max(len(xs), 1)
     row = {"elements": problem.model.mesh.n_elements, "design_variables": problem.n_design,
            "flow_dofs": problem.model.flow.size, "iterations": len(stamps),
            "seconds_per_iteration": mean(per_iteration[1:]),
            "forward_s": mean(times["forward"][2:2 + n]),
-           "adjoint_s": mean([a + b for a, b in zip(times["adjoint"][2::2], times["adjoint"][3::2])]),
+           "adjoint_s": mean([a + b for a, b in zip(times["adjoint"][2::2], times["adjoint"][3::2], strict=False)]),
            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2,
            "backend": args.backend, "blas_threads": args.blas_threads,
            "machine": f"{platform.machine()}, Python {platform.python_version()}"}
     row["mma_and_rest_s"] = row["seconds_per_iteration"] - row["forward_s"] - row["adjoint_s"]
-    cpu = [b[0] - a[0] for a, b in zip(cpu_stamps[:-1], cpu_stamps[1:])]
+    cpu = [b[0] - a[0] for a, b in zip(cpu_stamps[:-1], cpu_stamps[1:], strict=True)]
     row["cpu_seconds_per_iteration"] = mean(cpu[1:])
     row["forward_cpu_s"] = mean(times["forward_cpu"][2:2 + n])
-    row["adjoint_cpu_s"] = mean([a + b for a, b in zip(times["adjoint_cpu"][2::2], times["adjoint_cpu"][3::2])])
+    row["adjoint_cpu_s"] = mean([a + b for a, b in zip(times["adjoint_cpu"][2::2], times["adjoint_cpu"][3::2], strict=False)])
     if args.backend == "iterative" and len(cpu_stamps) > 2:     # per warm iteration: the flow's Krylov solves
         per = []
-        for (_, a), (_, b) in zip(cpu_stamps[1:-1], cpu_stamps[2:]):
+        for (_, a), (_, b) in zip(cpu_stamps[1:-1], cpu_stamps[2:], strict=True):
             newton = krylov["newton"][a["newton"]:b["newton"]]
             transposed = krylov["transposed"][a["transposed"]:b["transposed"]]
             if newton and transposed:
@@ -240,9 +240,9 @@ def large(scene, args, write_json) -> None:
                 done = sum(r[1] == "two-way" for r in rows) >= args.iterations
                 profiler.disable() if done else profiler.enable()
         Optimizer(problem, tmp, on_iteration=on_iteration).design_after(ONE_WAY_STAGES + 1)
-    cpu = [b[2] - a[2] for a, b in zip([(0, "", t0)] + rows[:-1], rows)]
-    one_way = [c for c, r in zip(cpu, rows) if r[0] == ONE_WAY_STAGES - 1][1:]
-    two_way = [c for c, r in zip(cpu, rows) if r[1] == "two-way"]
+    cpu = [b[2] - a[2] for a, b in zip([(0, "", t0)] + rows[:-1], rows, strict=True)]
+    one_way = [c for c, r in zip(cpu, rows, strict=True) if r[0] == ONE_WAY_STAGES - 1][1:]
+    two_way = [c for c, r in zip(cpu, rows, strict=True) if r[1] == "two-way"]
     first, warm = two_way[0], statistics.median(two_way[1:])
     row = {"scene": scene.name, "elements": problem.model.mesh.n_elements, "design_variables": problem.n_design,
            "flow_dofs": problem.model.flow.size, "two_way_iterations": len(two_way),

@@ -174,3 +174,21 @@ def test_tofsi_solve_writes_fields_and_figures(cli, tmp_path):
     import meshio
     m = meshio.read(tmp_path / "solution.vtu")
     assert {"velocity", "pressure", "structure_displacement"} <= set(m.point_data)
+
+
+def test_a_single_fields_ordering_is_its_physics_own_and_the_grids_nested_dissection():
+    """The block preconditioner's per-field orderings are the permutations the fields' own solves
+    factorize with (one object, made once), and equal the nested dissection of the block's grid
+    made anew (truth: :func:`tofsi.linalg.nested_dissection`); several fields get their own."""
+    from tofsi.linalg import nested_dissection
+    model, _ = soft_model("monolithic")
+    system = model.system
+    own = {"w": model.flow.ordering, "u": model.structure.perm, "x": model.motion.base.ordering}
+    for name in system.names:
+        perm = system.ordering((name,))
+        assert perm is own[name]
+        coords, last = system.by_name[name].ordering_grid()
+        np.testing.assert_array_equal(perm, nested_dissection(coords, last=last))
+    both = system.ordering(("w", "u"))
+    assert both.size == system.by_name["w"].size + system.by_name["u"].size
+    assert np.array_equal(np.sort(both), np.arange(both.size))

@@ -168,11 +168,11 @@ def test_the_lean_smoothed_aggregation_is_pyamgs_hierarchy(symmetric):
     lean = smoothed_aggregation(A, B, symmetric, ONE_SWEEP)
     assert [level.A.shape for level in lean.levels] == [level.A.shape for level in reference.levels]
     assert len(lean.levels) >= 2
-    for mine, theirs in zip(lean.levels[:-1], reference.levels[:-1]):
+    for mine, theirs in zip(lean.levels[:-1], reference.levels[:-1], strict=True):
         for name in ("P", "R"):
             M, T = sp.csr_matrix(getattr(mine, name)), sp.csr_matrix(getattr(theirs, name))
             assert abs(M - T).max() <= 1e-13 * abs(T).max()
-    for mine, theirs in zip(lean.levels[1:], reference.levels[1:]):
+    for mine, theirs in zip(lean.levels[1:], reference.levels[1:], strict=True):
         assert abs(sp.csr_matrix(mine.A) - sp.csr_matrix(theirs.A)).max() <= 1e-12 * abs(theirs.A).max()
     b = np.random.default_rng(0).standard_normal(A.shape[0])
     mine, theirs = lean.aspreconditioner() @ b, reference.aspreconditioner() @ b
@@ -196,7 +196,7 @@ def test_a_hierarchy_is_the_same_every_run_whatever_the_callers_random_state(sym
         assert np.random.rand() == np.random.RandomState(seed).rand()      # the caller's stream untouched
     first, second = builds
     assert len(first.levels) >= 3
-    for one, other in zip(first.levels, second.levels):
+    for one, other in zip(first.levels, second.levels, strict=True):
         for name in ("A", "P", "R"):
             if hasattr(one, name):
                 assert (sp.csr_matrix(getattr(one, name)) != sp.csr_matrix(getattr(other, name))).nnz == 0

@@ -203,3 +203,105 @@ def test_a_ramp_step_short_of_the_end_is_solved_loosely_and_the_end_to_the_probl
 
     ramped(design_step, Continuation(), solved, 0.1, rho, ("w", "u", "x"), ("w",))
     assert tols == [(1.0, None), (0.5, None), (1.0, None)]
+
+
+def test_the_ramps_first_step_starts_from_the_flow_the_failed_attempt_solved():
+    """A stand-in whose direct attempt fails after its sweep solved the flow (the error's
+    ``solved``): the ramp's first step starts from that flow scaled by its inflow (hand values:
+    the secant from rest through it), the structure and the mesh unset; the next step from the
+    secant as before. An attempt that solved nothing leaves the first step at rest (None)."""
+    from tofsi.coupling.load_ramp import ramped
+    rho = np.ones(3)
+    one_way = State(rho, {"w": np.ones(4), "u": np.ones(2), "x": None})
+    w_full = np.array([1.0, 2.0, 3.0, 4.0])
+    starts = []
+
+    def solve(params, guess, rho, direct=False, tol=None, load_step=False):
+        if direct:
+            err = NumericalError("the structure's Newton stalls", {})
+            err.solved = {"w": w_full.copy()}
+            raise err
+        starts.append((params.load, guess))
+        return State(rho, {"w": params.load * w_full + 0.1, "u": np.ones(2), "x": np.ones(2)}, params, True)
+
+    ramped(solve, Continuation(), one_way, 0.1, rho, ("w", "u", "x"), ("w",))
+    (t1, first), (t2, second) = starts
+    assert t1 == 0.5 and t2 == 1.0
+    np.testing.assert_array_equal(first.w, 0.5 * w_full)
+    assert first.u is None and first.x is None and np.array_equal(first.rho, rho)
+    np.testing.assert_allclose(second.w, 2.0 * (0.5 * w_full + 0.1), rtol=1e-15)   # the secant from rest
+
+    starts.clear()
+
+    def nothing_solved(params, guess, rho, direct=False, tol=None, load_step=False):
+        if direct:
+            raise NumericalError("the flow fails", {})
+        return solve(params, guess, rho, direct, tol, load_step)
+    ramped(nothing_solved, Continuation(), one_way, 0.1, rho, ("w", "u", "x"), ("w",))
+    assert starts[0][1] is None                                       # from rest
+
+
+def test_a_failed_direct_attempt_leaves_its_flow_which_solves_the_full_inflow_at_rest(one_way_start):
+    """The shipped (soft) structure: the direct attempt's sweep solves the flow, then the
+    structure's Newton stalls; the error carries that flow (nothing else), and it satisfies the
+    flow's own residual at the full inflow on the mesh at rest to the sweep's tolerance (truth:
+    the residual evaluated anew)."""
+    from tofsi.coupling.monolithic import SWEEP_TOL
+    gamma, guess = one_way_start
+    problem = tofsi.Problem(load("beam_in_channel_optimization_large", *COARSE, "structure.youngs_modulus=2e3"))
+    problem.set_stage(continuation(problem.scene, 3))
+    system = problem.model.system_for(problem.stage)
+    rho, params = problem.densities(gamma), problem.stage.params
+    with pytest.raises(NumericalError, match="structure") as failed:
+        system.solve(rho, params, guess, direct=True)
+    assert set(failed.value.solved) == {"w"}
+    fields = {"w": failed.value.solved["w"], "u": None, "x": np.zeros(system.by_name["x"].size)}
+    block = system.by_name["w"]
+    lin = block.linearize(fields, rho, params)
+    scale = block.residual_scale(fields, rho, params, lin)
+    assert np.linalg.norm(block.residual(fields, rho, params)) <= SWEEP_TOL * scale
+    np.testing.assert_allclose(fields["w"][block.fixed], problem.model.flow.boundary_values(params)[block.fixed])
+
+
+class _Recorded:
+    """A stand-in block whose residual is fixed (``value`` per unit of its scale) and whose
+    evaluations are counted."""
+
+    def __init__(self, name, size, inputs, value, calls):
+        self.name, self.size, self.inputs, self.value, self.calls = name, size, inputs, value, calls
+
+    def residual(self, values, rho, params):
+        self.calls.append(self.name)
+        return np.array([self.value, 0.0])
+
+    def linearize(self, values, rho, params):
+        block = self
+
+        class Lin:
+            @property
+            def residual(self):
+                return block.residual(values, rho, params)
+        return Lin()
+
+
+def test_a_line_search_trial_over_its_bound_skips_the_largest_block():
+    """The merit of a monolithic Newton's trial: the largest scaled residual (hand values). The
+    mesh (small, reading only the structure) is evaluated first, then the flow and the structure
+    in their order (the structure's load reads the flow's pass); once one reaches the bound (the
+    merit a trial must fall below) the rest are skipped and no linearizations are returned; a
+    non-finite residual is inf."""
+    from tofsi.coupling.monolithic import scaled_merit
+    calls = []
+    blocks = [_Recorded("w", 100, ("x",), 0.3, calls), _Recorded("u", 10, ("w", "x"), 0.5, calls),
+              _Recorded("x", 10, ("u",), 8.0, calls)]
+    scales = [1.0, 2.0, 4.0]                                          # scaled: w 0.3, u 0.25, x 2.0
+    value, lins = scaled_merit(blocks, scales, {}, None, None, linearize=True)
+    assert value == 2.0 and set(lins) == {"w", "u", "x"} and calls == ["x", "w", "u"]
+    calls.clear()
+    value, lins = scaled_merit(blocks, scales, {}, None, None, linearize=True, bound=1.5)
+    assert value == 2.0 and lins is None and calls == ["x"]          # rejected: the flow never touched
+    calls.clear()
+    value, _ = scaled_merit(blocks, scales, {}, None, None, bound=2.5)
+    assert value == 2.0 and calls == ["x", "w", "u"]                 # under the bound: every block
+    blocks[1].value = np.nan
+    assert scaled_merit(blocks, scales, {}, None, None)[0] == np.inf

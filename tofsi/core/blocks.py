@@ -245,6 +245,12 @@ class FieldBlock(ABC):
         the nested-dissection ordering of monolithic systems, or None."""
         return None
 
+    def ordering(self):
+        """The fill-reducing permutation of this block's unknowns alone that its physics keeps
+        (the one its own solves factorize with), or None: the block system makes one from
+        :meth:`ordering_grid`."""
+        return None
+
 
 @dataclass
 class State:

@@ -52,6 +52,7 @@ class NumericalError(TofsiError, RuntimeError):
     def __init__(self, message: str, diagnostic: dict | None = None, state=None):
         self.diagnostic = dict(diagnostic or {})
         self.state = state        # the last state reached (e.g. a mesh displacement), if any
+        self.solved = {}          # the fields a coupled sweep solved before this failure, by name
         super().__init__(message)
 
     def __reduce__(self):                      # picklable; the state stays behind

@@ -188,10 +188,13 @@ class BlockSystem:
 
     def ordering(self, names) -> np.ndarray | None:
         """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid);
-        computed once per tuple of names (the blocks' grids never change)."""
+        computed once per tuple of names (the blocks' grids never change). One block's is its
+        physics' own where it keeps one (:meth:`FieldBlock.ordering`: the same permutation, made
+        once for both; 0.15 s at 160 x 80 for the flow, the structure and the mesh)."""
         names = tuple(names)
         if names not in self._orderings:
-            self._orderings[names] = self._nested_dissection(names)
+            own = self.by_name[names[0]].ordering() if len(names) == 1 else None
+            self._orderings[names] = own if own is not None else self._nested_dissection(names)
         return self._orderings[names]
 
     def _nested_dissection(self, names) -> np.ndarray | None:
@@ -259,14 +262,22 @@ class BlockSystem:
         """Fill the fields of the cycle ``comp`` that have no guess: one sweep in order (each block
         solved with the latest values of the others, absent ones at their initial value;
         ``direct``: without the blocks' own continuation; ``tol``: each block that takes one
-        solved to that scaled residual only, ``FieldBlock.takes_tolerance``)."""
+        solved to that scaled residual only, ``FieldBlock.takes_tolerance``). A block's failure
+        leaves the fields solved before it on the error (``solved``: a failed direct attempt's flow
+        starts the inflow ramp, :mod:`tofsi.coupling.load_ramp`)."""
         if all(fields[n] is not None for n in comp):
             return
         for name in comp:
             if fields[name] is None:
                 fields[name] = self.by_name[name].initial(fields, state.rho, state.params)
+        solved = {}
         for name in comp:
-            fields[name] = self._solve_block(name, fields, state, progress, direct=direct, tol=tol)
+            try:
+                fields[name] = self._solve_block(name, fields, state, progress, direct=direct, tol=tol)
+            except NumericalError as err:
+                err.solved = solved         # the fields this sweep solved before it failed
+                raise
+            solved[name] = fields[name]
 
     def _partitioned(self, comp, fields, state, progress, direct=False, tol=None) -> None:
         s = self.settings

@@ -250,6 +250,9 @@ class FlowBlock(FieldBlock):
     def ordering_grid(self):
         return self.flow.grid(), self.flow.pressure_dofs
 
+    def ordering(self):
+        return self.flow.ordering
+
 
 # ---- the registry entry ----------------------------------------------------------------------
 class FlowEntry(Field):

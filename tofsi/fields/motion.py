@@ -267,6 +267,9 @@ class MotionBlock(FieldBlock):
     def ordering_grid(self):
         return np.repeat(self.motion.mesh.grid_positions(), 2, axis=0), np.zeros(self.size, dtype=bool)
 
+    def ordering(self):
+        return self.motion.base.ordering
+
 
 
 # ---- the registry entry ----------------------------------------------------------------------

@@ -215,6 +215,9 @@ class StructureBlock(FieldBlock):
     def ordering_grid(self):
         return self.structure.grid, np.zeros(self.size, dtype=bool)
 
+    def ordering(self):
+        return self.structure.perm
+
 
 # ---- the registry entry ----------------------------------------------------------------------
 class StructureEntry(Field):

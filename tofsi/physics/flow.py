@@ -305,11 +305,16 @@ class Flow:
         """(size,) bool: the pressure unknowns (numbered after the velocities in each block)."""
         return np.arange(self.size) >= self.n_velocity
 
-    def factorize(self, A):
-        """The LU of a flow Jacobian (nested dissection, pressures last per block)."""
+    @property
+    def ordering(self) -> np.ndarray:
+        """The nested-dissection permutation of the dofs (pressures last per block), made once."""
         if self._perm is None:
             self._perm = nested_dissection(self.grid(), last=self.pressure_dofs)
-        return self.linear_algebra.direct(A, perm=self._perm)
+        return self._perm
+
+    def factorize(self, A):
+        """The LU of a flow Jacobian (nested dissection, pressures last per block)."""
+        return self.linear_algebra.direct(A, perm=self.ordering)
 
     def factorizer(self, x=None, rho=None, params=None):
         """``A -> solver`` for the flow Jacobians on the mesh moved by ``x`` with densities ``rho``:
