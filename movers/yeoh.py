@@ -35,7 +35,7 @@ which a move may inherit from an earlier one (``solver``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -152,9 +152,11 @@ class YeohMover(Mover):
         return Re, Ke
 
     warm_starts = True
+    takes_tolerance = True      # move() takes ``tol``: a looser Newton tolerance (a coupled sweep's start)
 
     def move(self, problem: MotionProblem, prescribed: np.ndarray, progress=None,
-             initial: np.ndarray | None = None, solver: RecyclingSolver | None = None) -> MoveResult:
+             initial: np.ndarray | None = None, solver: RecyclingSolver | None = None,
+             tol: float | None = None) -> MoveResult:
         """Displacement with the fixed nodes at ``prescribed``.
 
         initial : ``(n, 2)`` a mesh displacement for a nearby motion (e.g. the
@@ -165,7 +167,10 @@ class YeohMover(Mover):
         solver : the :class:`~tofsi.linalg.RecyclingSolver` of an earlier move of
             the same mesh, whose factorization (or hierarchy) preconditions this
             move's systems until it goes stale.
-        The result does not depend on either (to ``newton_tol``).
+        tol : a Newton tolerance looser than ``newton_tol`` (``|D_free|`` relative to the
+            force scale, :meth:`movers.newton.LoadStepNewton.tolerance`), for a move that
+            only starts a coupled Newton (the monolithic solve's starting sweep).
+        The result does not depend on ``initial`` or ``solver`` (to the tolerance).
         """
         target, t0 = self._start(problem, prescribed)
         report = MoveReport(mover=self.name)
@@ -173,7 +178,10 @@ class YeohMover(Mover):
         solver = self._solver(problem) if solver is None else solver
         counts = solver.factorizations, solver.krylov_iterations
         ops = SerialOperators(YeohKernel(problem, self.params), blend, target, solver, t0, progress)
-        x = LoadStepNewton(ops, NewtonSettings.of(self.params), report, "yeoh").move(initial)
+        settings = NewtonSettings.of(self.params)
+        if tol is not None:
+            settings = replace(settings, newton_tol=max(tol, settings.newton_tol))
+        x = LoadStepNewton(ops, settings, report, "yeoh").move(initial)
         result = self._finish(report, problem, x, t0, solver, blend=blend, target=target)
         report.factorizations -= counts[0]               # this move's own
         report.krylov_iterations -= counts[1]

@@ -212,3 +212,26 @@ def test_impossible_motion_fails_with_a_diagnostic_not_nan():
     assert diag["report"]["cutbacks"] >= 1 and not diag["report"]["converged"]
     assert np.all(np.isfinite(err.value.state))
     assert "worst_element" in diag["quality"]
+
+
+def test_a_looser_tolerance_stops_newton_early_at_that_residual():
+    """``move(..., tol=...)`` (a coupled sweep's start) stops where ``|D_free|`` falls below
+    ``tol`` of the force scale (here the forces of the boundary's motion alone, the first
+    residual): fewer Newton steps than ``newton_tol``, its residual (the residual form's, an
+    independent evaluation) between the two tolerances, the displacement that of the full
+    solve to about that fraction."""
+    mesh, problem = _plate()
+    u = np.zeros((mesh.n_nodes, 2))
+    top = mesh.side_nodes("top")
+    u[top, 0] = 0.25 * np.sin(np.pi * mesh.points[top, 0])
+    mover = YeohMover(YeohParams(increments=1, newton_tol=1e-12))
+    full, loose = mover.move(problem, u), mover.move(problem, u, tol=1e-3)
+    assert loose.report.newton_iterations < full.report.newton_iterations
+    free = ~problem.bc.is_fixed
+    boundary_only = np.where(free, 0.0, u.ravel())                 # the boundary moved, the rest at rest
+    forces = np.linalg.norm(mover.residual(problem, boundary_only, u.ravel(), jacobian=False)[0][free])
+    d_loose = np.linalg.norm(mover.residual(problem, loose.displacement.ravel(), u.ravel(), jacobian=False)[0][free])
+    d_full = np.linalg.norm(mover.residual(problem, full.displacement.ravel(), u.ravel(), jacobian=False)[0][free])
+    assert d_full < 1e-10 * forces and 1e-10 * forces < d_loose < 1e-3 * forces
+    change = np.linalg.norm(loose.displacement - full.displacement) / np.linalg.norm(full.displacement)
+    assert change < 1e-2

@@ -231,6 +231,7 @@ class MotionBlock(FieldBlock):
         self.explicit = motion.path_dependent      # the residual x - M(u, rho) of a move in increments
         self.matrix_free_couplings = ("u",) if self.explicit else ()
         self.slow_couplings = ("u",) if self.explicit else ()   # its tangent: a store per move
+        self.takes_tolerance = motion.takes_tolerance           # solve() takes a sweep's ``tol``
 
     @property
     def fixed(self):
@@ -249,9 +250,13 @@ class MotionBlock(FieldBlock):
             return MoveLinearization(self, fields, rho, params, self.motion.move(fields["u"], rho))
         return MotionLinearization(self, fields, rho, params)
 
-    def solve(self, fields, rho, params, guess=None, previous=None, progress=None):
+    def solve(self, fields, rho, params, guess=None, previous=None, progress=None, tol=None):
+        """The mover's move with the structure's ``u``, warm started from ``guess`` and
+        ``previous``'s solver; ``tol`` (a mover that takes one): its Newton only to that
+        residual relative to its force scale (a starting sweep's)."""
         recycled = previous.solver if isinstance(previous, MotionLinearization) else None
-        result = self.motion.move(fields["u"], rho, progress, initial=guess, solver=recycled)   # warm starts
+        result = self.motion.move(fields["u"], rho, progress, initial=guess, solver=recycled,   # warm starts
+                                  **({} if tol is None else {"tol": tol}))
         x = result.displacement.ravel()
         values = {**fields, "x": x}
         if self.explicit:

@@ -102,6 +102,11 @@ class MeshMotion:
         return self.mover.path_dependent
 
     @property
+    def takes_tolerance(self) -> bool:
+        """True when the mover's ``move`` takes ``tol``, a looser Newton tolerance (the Yeoh mover)."""
+        return getattr(self.mover, "takes_tolerance", False)
+
+    @property
     def fixed_dofs(self) -> np.ndarray:
         """Dofs of the nodes whose motion is prescribed (boundary, and solid in the explicit form)."""
         return self.base.fixed_dofs
@@ -170,15 +175,19 @@ class MeshMotion:
         return float(np.linalg.norm(gap, axis=1).max())
 
     # ---- moving and derivatives ------------------------------------------------------
-    def move(self, u, rho=None, progress=None, initial=None, solver=None) -> MoveResult:
+    def move(self, u, rho=None, progress=None, initial=None, solver=None, tol=None) -> MoveResult:
         """Move the mesh with the structure's displacement ``u``: the mover's result, whose
         ``displacement`` ``(n, 2)`` is the mesh displacement ``x``. For movers that warm
         start: ``initial``, a mesh displacement for a nearby motion to start from, and
-        ``solver``, an earlier move's solver to recycle (neither changes the result)."""
+        ``solver``, an earlier move's solver to recycle (neither changes the result). For movers
+        that take one (:attr:`takes_tolerance`): ``tol``, a looser Newton tolerance (a sweep
+        that only starts a coupled Newton)."""
         problem = self.problem(rho)
         if solver is None:                        # the last densities' moves' factorizations, if kept
             solver = self.kept_solvers.get(self.density_key(rho), lambda: self.mover.increment_solvers(problem))
         start = {"initial": initial, "solver": solver} if self.mover.warm_starts else {}
+        if tol is not None and self.takes_tolerance:
+            start["tol"] = tol
         result = self.mover.move(problem, self.target(u), progress, **start)
         result.problem = problem
         return result
