@@ -75,6 +75,30 @@ def test_refactorized_small_blocks_invert_a_new_block_lower_triangle_and_the_lar
         solver.refactor_small_blocks(BlockMatrix.from_sparse(old, (40, 15, 25)))
 
 
+def test_an_adjoint_after_a_far_newton_refactorizes_only_the_small_blocks_and_solves_the_new_transpose():
+    """A recycling solver whose block preconditioner was built on one matrix and then served a
+    matrix with other small blocks (the same largest: a Newton that moved the structure and the
+    mesh far, the flow little) is dearer than a fresh one: its transposed solve refactorizes the
+    small blocks only (no new preconditioner, the largest block's factors the same object) and
+    returns ``A^-T b`` of the new matrix (SciPy's LU of the whole as the truth)."""
+    from tofsi.linalg import BlockMatrix
+    old = coupled_matrix(0.5, seed=0)
+    rng = np.random.default_rng(3)
+    moved = sp.block_diag([sp.csr_matrix((40, 40))] + [3.0 * sp.random(n, n, 0.3, random_state=rng) for n in SIZES[1:]])
+    new = (old + moved).tocsr()                            # the small diagonal blocks moved far
+    A_old, A_new = BlockMatrix.from_sparse(old, SIZES), BlockMatrix.from_sparse(new, SIZES)
+    b = np.random.default_rng(5).normal(size=new.shape[0])
+    solver = RecyclingSolver(BlockGaussSeidel)
+    solver.solve(A_old, b)                                 # a fresh preconditioner's cost per decade
+    solver.solve(A_new, b, rtol=1e-1)                      # a Newton step on the far matrix: dearer
+    largest = solver.solver.diagonal[0]
+    assert not solver.stale and solver.last_cost - solver.fresh_cost > 0.15 * BlockGaussSeidel.setup_iterations
+    x = solver.solve_transpose(A_new, b)
+    assert solver.factorizations == 1 and solver.solver.diagonal[0] is largest
+    ref = spla.spsolve(new.T.tocsc(), b)
+    assert np.linalg.norm(x - ref) <= 1e-9 * np.linalg.norm(ref)
+
+
 def test_block_sizes_that_do_not_make_up_the_matrix_are_refused():
     with pytest.raises(ValueError, match="block sizes"):
         BlockGaussSeidel(coupled_matrix(0.5), (40, 25, 10))

@@ -98,8 +98,9 @@ class RecyclingSolver:
         x, _ = pyamg.krylov.cg(A, b, x0=x0, tol=goal / bnorm, maxiter=max_iter, M=M, residuals=residuals)
         return x, len(residuals) - 1
 
-    def _krylov(self, A, b, x0=None, rtol=None, transpose=False):
-        """Solve with the current solver as preconditioner: (x, converged)."""
+    def _krylov(self, A, b, x0=None, rtol=None, transpose=False, setups: int = 2):
+        """Solve with the current solver as preconditioner: (x, converged). An iterative solver
+        stops after its fresh cost over the decades and ``setups`` times its setup."""
         rtol = self.rtol if rtol is None else max(rtol, self.rtol)
         bnorm = float(np.linalg.norm(b))
         goal = rtol * bnorm
@@ -115,7 +116,7 @@ class RecyclingSolver:
             else:
                 setup = self.solver.setup_iterations
                 cap = (self.solver.max_iter if self.fresh_cost is None
-                       else int(self.fresh_cost * math.log10(r0 / goal) + 2 * setup) + 1)
+                       else int(self.fresh_cost * math.log10(r0 / goal) + setups * setup) + 1)
                 if self.solver.symmetric:
                     x, its = self._cg(A, b, apply, x0, goal, cap)
                 else:                      # GMRES(m) for a fixed linear preconditioner, else FGMRES
@@ -165,22 +166,45 @@ class RecyclingSolver:
             return False
         return (self.last_cost - self.fresh_cost) * decades > self.solver.setup_iterations
 
+    def _refresh_partly(self, A) -> bool:
+        """Refactorize at ``A`` the cheap part of a preconditioner that has one (a block
+        preconditioner's small diagonal blocks, :meth:`BlockGaussSeidel.refactor_small_blocks`);
+        True when done. A failed factorization leaves the solver stale."""
+        refactor = getattr(self.solver, "refactor_small_blocks", None)
+        if refactor is None or not self._usable(A):
+            return False
+        try:
+            refactor(A)
+        except ValueError:                  # not a block matrix of the preconditioner's sizes
+            return False
+        except NumericalError:
+            self.stale = True
+            return False
+        self.last_cost = None
+        return True
+
     def solve_transpose(self, A, b: np.ndarray) -> np.ndarray:
-        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance; an iterative solver
-        grown dearer than a fresh one over this solve's decades is rebuilt at ``A`` first."""
+        """Solve ``A^T x = b`` (adjoints), to the solver's own tolerance. An iterative solver
+        grown dearer than a fresh one over this solve's decades has its cheap part refactorized
+        at ``A`` first where it has one (the small fields' blocks: what a Newton that moved far
+        changed most), and the solve may then take what a fresh one would (its fresh cost and
+        one setup) before a new one is built at ``A``; without a cheap part it is rebuilt first."""
         if not np.any(b):
             return np.zeros_like(b)
+        setups = 2
         if self._dearer_than_fresh(-math.log10(self.rtol)):
             log.info("the preconditioner went stale over the Newton steps (%.1f iterations per decade, "
-                     "%.1f fresh); a new one for the transposed solve", self.last_cost, self.fresh_cost)
-            self.stale = True
+                     "%.1f fresh); its cheap part refactorized, else a new one, for the transposed solve",
+                     self.last_cost, self.fresh_cost)
+            partly = self._refresh_partly(A)
+            self.stale, setups = not partly, 1
         if self._usable(A) and hasattr(self.solver, "solve_with"):    # a solver with its own Krylov norm
             try:
                 return self.solver.solve_with(A, b, transpose=True)
             except NumericalError:
                 pass                                                  # stale: a new one below
         elif self._usable(A) and self.solver.preconditioner(True) is not None:
-            x, ok = self._krylov(A.T, b, transpose=True)
+            x, ok = self._krylov(A.T, b, transpose=True, setups=setups)
             if ok:
                 return x
         self.refresh(A)
