@@ -99,6 +99,25 @@ def test_an_adjoint_after_a_far_newton_refactorizes_only_the_small_blocks_and_so
     assert np.linalg.norm(x - ref) <= 1e-9 * np.linalg.norm(ref)
 
 
+def test_a_ramp_newton_refactorizes_the_small_blocks_once_a_solve_took_more_than_that_costs():
+    """``last_excess``: a solve's iterations beyond a fresh preconditioner's over its decades --
+    0 for the solve that measured the fresh cost, by definition; more than the small blocks'
+    refactorization (``refactor_iterations``) on a matrix whose small blocks moved far, which the
+    ramp's Newton then refactorizes (``monolithic.crept``)."""
+    from tofsi.coupling.monolithic import crept
+    from tofsi.linalg import BlockMatrix
+    old = coupled_matrix(0.5, seed=0)
+    rng = np.random.default_rng(3)
+    moved = sp.block_diag([sp.csr_matrix((40, 40))] + [3.0 * sp.random(n, n, 0.3, random_state=rng) for n in SIZES[1:]])
+    A_old, A_new = BlockMatrix.from_sparse(old, SIZES), BlockMatrix.from_sparse((old + moved).tocsr(), SIZES)
+    b = np.random.default_rng(5).normal(size=old.shape[0])
+    solver = RecyclingSolver(BlockGaussSeidel)
+    solver.solve(A_old, b)
+    assert solver.last_excess == pytest.approx(0.0, abs=1e-12) and not crept(solver)
+    solver.solve(A_new, b, rtol=1e-1)
+    assert solver.last_excess > BlockGaussSeidel.refactor_iterations and crept(solver)
+
+
 def test_block_sizes_that_do_not_make_up_the_matrix_are_refused():
     with pytest.raises(ValueError, match="block sizes"):
         BlockGaussSeidel(coupled_matrix(0.5), (40, 25, 10))

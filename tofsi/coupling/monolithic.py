@@ -21,7 +21,11 @@ cutback is cheaper than its crawl). In a step of the inflow ramp (``load_step``)
 Newton step that contracted by less than ``SLOW_CONTRACTION`` the block preconditioner's small
 diagonal blocks are factorized at the iterate (the structure's and the mesh's; the flow's
 factors are kept): the large scene's step to its full inflow at 80 x 40 took 83 GMRES
-iterations over 11 Newton steps with the first iterate's factors, 36-38 with these. Elsewhere
+iterations over 11 Newton steps with the first iterate's factors, 36-38 with these. So are they
+after a GMRES solve that took more iterations beyond a fresh preconditioner's than their
+factorization costs (:func:`crept`; the preconditioner of the far iterates grown stale for the
+near ones: at 160 x 80 the last five Newton steps to the full inflow took 12-18 GMRES iterations
+each, 3-6 after it, and the adjoint found it fresh enough). Elsewhere
 (a design change's solve, the densities' path) the rule is off: the Newton's path, though to the
 same tolerance, then differs, and the large example's optimization, sensitive to it at a trial
 design whose state snaps from 0.36 m to 0.22 m, ended elsewhere (1.98 or 1.62 J/m against 1.70).
@@ -82,7 +86,8 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
     the largest scaled residual ``tol``, default the settings'), and ``state`` receives the
     blocks' linearizations, the cycle's :class:`CoupledLinearization` and the report ``"coupling"``.
     ``load_step``: a step of the inflow ramp, far from its solution (the small blocks refactorized
-    after a step that contracted little); ``recycled``: the last load step's solver, whose
+    after a step that contracted little, or whose GMRES took more iterations beyond a fresh
+    preconditioner's than that refactorization costs, :func:`crept`); ``recycled``: the last load step's solver, whose
     preconditioner starts this one's (a new one only when it goes stale)."""
     s = system.settings
     tol = s.tol if tol is None else tol
@@ -132,7 +137,7 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
         b = -np.concatenate(R)
         eta = forcing_term(merits, tol)           # inexact Newton
         found, solver = newton_step(system, comp, lins, kept, b, eta, solver, fields, merit, max(norms),
-                                    history, refactor=far and load_step)
+                                    history, refactor=load_step and (far or crept(solver)))
         if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
             log.info("monolithic Newton %d: no decrease along the %s step; the exact Newton step "
                      "from here on", it, "quasi-Newton" if kept else "inexact")
@@ -211,6 +216,13 @@ def newton_step(system, comp, lins, kept, b, rtol, solver, fields, merit, norm, 
     if found is not None:
         history[-1]["step_length"] = found[0]
     return found, solver
+
+
+def crept(solver) -> bool:
+    """True when the solver's last GMRES solve took more iterations beyond a fresh block
+    preconditioner's than refactorizing its small blocks costs (``refactor_iterations``)."""
+    excess = getattr(solver, "last_excess", None)
+    return excess is not None and excess > getattr(solver.solver, "refactor_iterations", np.inf)
 
 
 def refactor_small_blocks(solver, J: BlockMatrix, history: list) -> None:

@@ -67,6 +67,7 @@ class RecyclingSolver:
         self.stale = False
         self.fresh_cost = None             # iterations per decade of a fresh hierarchy
         self.last_cost = None              # iterations per decade of the latest solve
+        self.last_excess = None            # its iterations beyond a fresh one's over its decades
         self.factorizations = 0
         self.krylov_iterations = 0
 
@@ -83,7 +84,7 @@ class RecyclingSolver:
         log.info("new factorization (or hierarchy) of %d unknowns", A.shape[0])
         self.solver = self.factorize(A)
         self.stale = False
-        self.fresh_cost = self.last_cost = None
+        self.fresh_cost = self.last_cost = self.last_excess = None
         self.factorizations += 1
 
     def _usable(self, A) -> bool:
@@ -133,7 +134,8 @@ class RecyclingSolver:
             if self.fresh_cost is None:
                 self.fresh_cost = its / decades
             self.last_cost = its / decades
-            self.stale = its > self.fresh_cost * decades + self.solver.setup_iterations
+            self.last_excess = its - self.fresh_cost * decades
+            self.stale = self.last_excess > self.solver.setup_iterations
         log.info("%s: %d iterations, residual %.2e relative to |b|",
                  "GMRES" if self.solver.exact or not self.solver.symmetric else "CG", its, residual / bnorm)
         return x, ok
@@ -180,7 +182,7 @@ class RecyclingSolver:
         except NumericalError:
             self.stale = True
             return False
-        self.last_cost = None
+        self.last_cost = self.last_excess = None
         return True
 
     def solve_transpose(self, A, b: np.ndarray) -> np.ndarray:
