@@ -45,3 +45,22 @@ def test_a_mover_without_kept_factors_and_an_iterative_tangent_keep_none():
     assert movers.create("spring", increments=1, diagonals="both").increment_solvers(problem) is None
     assert movers.create("spring", increments=3, tangent_solver="amg").increment_solvers(problem) is None
     assert movers.create("linear", increments=1).increment_solvers(problem) is None
+
+
+def test_the_kept_first_increment_is_made_again_for_other_fixed_nodes():
+    """The first increment's kept system is keyed by the fixed nodes too: a bank passed to a
+    move on the same mesh, factors and stiffening but one more fixed node (held at rest) gives
+    the fresh move on that problem, not the first problem's system (truth: a fresh mover)."""
+    from movers.problem import MotionProblem
+    _, problem, u = setup_problem(blended=False)
+    mover = movers.create("spring", increments=4, diagonals="both")
+    kept = mover.increment_solvers(problem)
+    mover.move(problem, u, solver=kept)
+    free = np.setdiff1d(np.unique(problem.quads), problem.fixed_nodes)
+    pinned = MotionProblem(problem.points, problem.quads, np.append(problem.fixed_nodes, free[len(free) // 2]),
+                           problem.stiffening, problem.grid)
+    again = mover.move(pinned, u, solver=kept)
+    fresh = movers.create("spring", increments=4, diagonals="both", linear_tol=1e-15).move(pinned, u)
+    assert kept.reference.builds == 2
+    scale = np.abs(fresh.displacement).max()
+    assert np.abs(again.displacement - fresh.displacement).max() <= 1e-10 * scale
