@@ -47,20 +47,30 @@ def test_a_mover_without_kept_factors_and_an_iterative_tangent_keep_none():
     assert movers.create("linear", increments=1).increment_solvers(problem) is None
 
 
-def test_the_kept_first_increment_is_made_again_for_other_fixed_nodes():
-    """The first increment's kept system is keyed by the fixed nodes too: a bank passed to a
-    move on the same mesh, factors and stiffening but one more fixed node (held at rest) gives
-    the fresh move on that problem, not the first problem's system (truth: a fresh mover)."""
+def other_problem(problem, change):
+    """``problem`` with one input of its first increment's system changed."""
     from movers.problem import MotionProblem
-    _, problem, u = setup_problem(blended=False)
+    if change == "fixed nodes":                 # one more node held at rest
+        free = np.setdiff1d(np.unique(problem.quads), problem.fixed_nodes)
+        return MotionProblem(problem.points, problem.quads, np.append(problem.fixed_nodes, free[len(free) // 2]),
+                             problem.stiffening, problem.grid, problem.blend)
+    if change == "stiffening":
+        return problem.with_data(stiffening=problem.stiffening ** 2)
+    return problem.with_data(blend=0.5 * problem.blend)
+
+
+@pytest.mark.parametrize("change, blended", [("fixed nodes", False), ("stiffening", False), ("blend", True)])
+def test_the_kept_first_increment_is_made_again_when_an_input_changes(change, blended):
+    """The first increment's kept matrices and system are keyed by every input: a bank passed to a
+    move on the same mesh with other fixed nodes, stiffening or blend gives the fresh move on that
+    problem, not the first problem's system (truth: a fresh mover solved to round-off)."""
+    _, problem, u = setup_problem(blended=blended)
     mover = movers.create("spring", increments=4, diagonals="both")
     kept = mover.increment_solvers(problem)
     mover.move(problem, u, solver=kept)
-    free = np.setdiff1d(np.unique(problem.quads), problem.fixed_nodes)
-    pinned = MotionProblem(problem.points, problem.quads, np.append(problem.fixed_nodes, free[len(free) // 2]),
-                           problem.stiffening, problem.grid)
-    again = mover.move(pinned, u, solver=kept)
-    fresh = movers.create("spring", increments=4, diagonals="both", linear_tol=1e-15).move(pinned, u)
+    other = other_problem(problem, change)
+    again = mover.move(other, u, solver=kept)
+    fresh = movers.create("spring", increments=4, diagonals="both", linear_tol=1e-15).move(other, u)
     assert kept.reference.builds == 2
     scale = np.abs(fresh.displacement).max()
     assert np.abs(again.displacement - fresh.displacement).max() <= 1e-10 * scale
