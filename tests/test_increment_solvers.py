@@ -4,7 +4,8 @@
 Truths: a move preconditioned by the kept factors is the move solved to round-off (linear_tol 1e-15), to
 the kept factors' tolerance; the store of a move's derivatives hands its factors over, after which a
 nearby move (a Newton iterate's) factorizes nothing and makes its first increment's system (at the reference
-mesh) no more; and its tangent is the fresh move's.
+mesh) no more; and its tangent is the fresh move's. A move on a problem with other fixed nodes, stiffening or
+blend makes that system again and is the fresh move on that problem.
 """
 
 import numpy as np
