@@ -125,8 +125,8 @@ def stiffness_and_system(problem: MotionProblem, element_matrices: ElementMatric
     reference mesh (``at = 0``: every move's first increment) a :class:`MoveSolver`'s bank keeps
     them across the moves at its design, keyed by the kernel's ``key`` (its inputs besides the
     corners: without one, nothing is kept), the corners, the quads, the fixed nodes, the
-    stiffening and the blend: a Newton's moves at one design skip a quarter of their element matrices and assemblies with
-    the large scene's 4 increments."""
+    stiffening and the blend: a Newton's moves at one design skip a quarter of their element
+    matrices and assemblies with the large scene's 4 increments."""
     Xe = problem.points[problem.quads] + at.reshape(-1, 2)[problem.quads]
 
     def build():
