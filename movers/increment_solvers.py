@@ -44,7 +44,11 @@ class IncrementSolvers:
     without factors of their own (increments far apart, as the large scene's 4: 14-18 iterations
     each on their neighbour's factors, where a factorization costs about 8 and serves the store
     of the move's derivatives, which would else make it). Factors made at a move's own system
-    serve its store. Results never depend on timing, only on the moves made at
+    serve its store. The system the factors kept for increment ``k`` were made at
+    (``made_at``, held here: identity cannot match a recycled object) is solved by them
+    directly: every move's first increment, whose matrices and system at the reference mesh
+    ``reference`` keeps (:func:`movers.incremental.stiffness_and_system`, keyed by all their
+    inputs). Results never depend on timing, only on the moves made at
     the design (iteration counts). Which factors a move uses depends on the moves before it, so
     its solver error, unlike a fresh recycling solver's, is not a smooth function of the motion:
     finite differences across moves see it (at ``rtol = 1e-10`` a remainder floor of 1e-11 in

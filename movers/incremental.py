@@ -124,9 +124,9 @@ def stiffness_and_system(problem: MotionProblem, element_matrices: ElementMatric
     ``at`` (2n,) and its constrained system ``A = W f K0 + S_c`` (:func:`system`). At the
     reference mesh (``at = 0``: every move's first increment) a :class:`MoveSolver`'s bank keeps
     them across the moves at its design, keyed by the kernel's ``key`` (its inputs besides the
-    corners: without one, nothing is kept), the corners, the quads, the stiffening and the blend:
-    a Newton's moves at one design skip a quarter of their element matrices and assemblies with
-    the large scene's 4 increments."""
+    corners: without one, nothing is kept), the corners, the quads, the fixed nodes, the
+    stiffening and the blend: a Newton's moves at one design skip a quarter of their element
+    matrices and assemblies with the large scene's 4 increments."""
     Xe = problem.points[problem.quads] + at.reshape(-1, 2)[problem.quads]
 
     def build():
@@ -137,7 +137,8 @@ def stiffness_and_system(problem: MotionProblem, element_matrices: ElementMatric
     if key is None or not isinstance(solver, MoveSolver) or np.any(at):
         return build()
     blended = () if blend is None else (blend.weight, blend.diag)
-    return solver.bank.reference.get(input_key(key, Xe, problem.dofs, problem.stiffening, *blended), build)
+    inputs = input_key(key, Xe, problem.dofs, problem.fixed_nodes, problem.stiffening, *blended)
+    return solver.bank.reference.get(inputs, build)
 
 
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,

@@ -29,6 +29,8 @@ def test_history_json_holds_the_records_one_per_line_as_the_indented_writer_does
     assert json.loads(write_json_rows(tmp_path / "empty.json", []).read_text()) == []
 
 
-def test_a_non_finite_history_value_is_refused_not_written_as_null(tmp_path):
+@pytest.mark.parametrize("bad", [float("nan"), np.float32("inf"), np.array([1.0, np.nan])],
+                         ids=["float", "numpy-scalar", "numpy-array"])
+def test_a_non_finite_history_value_is_refused_not_written_as_null(tmp_path, bad):
     with pytest.raises(ValueError):
-        write_json_rows(tmp_path / "history.json", [{"objective": float("nan")}])
+        write_json_rows(tmp_path / "history.json", [{"objective": bad}])

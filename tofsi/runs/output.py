@@ -88,11 +88,19 @@ def write_json(path, obj) -> Path:
     return write_text(path, to_json(obj) + "\n")
 
 
+def _finite_plain(value):
+    """:func:`_plain` of a value the C encoder does not know (numpy scalars and arrays, paths),
+    raising ValueError where it holds a non-finite number instead of writing null."""
+    if isinstance(value, (np.floating, np.ndarray)) and not np.all(np.isfinite(value)):
+        raise ValueError(f"a non-finite number in a record: {value!r}")
+    return _plain(value)
+
+
 def write_json_rows(path, rows: list[dict]) -> Path:
     """A JSON list of finite records, one record per line (a run's history: every row again at
     each iteration, so the compact C encoder, not :func:`to_json`'s indented one; a non-finite
-    number raises ValueError)."""
-    lines = (json.dumps(row, allow_nan=False, default=_plain) for row in rows)
+    number, Python's or numpy's, raises ValueError)."""
+    lines = (json.dumps(row, allow_nan=False, default=_finite_plain) for row in rows)
     return write_text(path, "[\n" + ",\n".join(lines) + "\n]\n" if rows else "[]\n")
 
 
