@@ -130,6 +130,7 @@ class Mover(ABC):
     name: ClassVar[str]
     Params: ClassVar[type]
     warm_starts: ClassVar[bool] = False     # move() takes ``initial``, a nearby displacement to start from
+    takes_tolerance: ClassVar[bool] = False  # move() takes ``tol``, a looser Newton tolerance
 
     def __init__(self, params):
         self.params = params

@@ -256,7 +256,7 @@ class MotionBlock(FieldBlock):
         residual relative to its force scale (a starting sweep's)."""
         recycled = previous.solver if isinstance(previous, MotionLinearization) else None
         result = self.motion.move(fields["u"], rho, progress, initial=guess, solver=recycled,   # warm starts
-                                  **({} if tol is None else {"tol": tol}))
+                                  tol=tol)
         x = result.displacement.ravel()
         values = {**fields, "x": x}
         if self.explicit:

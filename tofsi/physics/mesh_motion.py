@@ -104,7 +104,7 @@ class MeshMotion:
     @property
     def takes_tolerance(self) -> bool:
         """True when the mover's ``move`` takes ``tol``, a looser Newton tolerance (the Yeoh mover)."""
-        return getattr(self.mover, "takes_tolerance", False)
+        return self.mover.takes_tolerance
 
     @property
     def fixed_dofs(self) -> np.ndarray:
