@@ -52,13 +52,7 @@ coupled Newton, not the problem's ``coupled.tol``): its state is the next step's
 start and nothing else, and the Newton's last, quadratic steps to 1e-9 there
 were thrown away (the large scene's step to half its inflow at 80 x 40: 4 Newton
 steps, not 9; the step to the full inflow from there takes as many as before,
-benchmarks/README.md). ``STEP_TOL`` is 2e-2, not 1e-2: the next step's Newton begins
-at a scaled residual of about 0.5 (the structure under the doubled load) from either
-start, and at 160 x 80 the step to half the inflow reached 1.1e-2 in 4 Newton steps
-and took a fifth (0.5 s CPU) to pass 1e-2 (the step to the full inflow then took as
-many Newton steps from either start; at 80 x 40 as many, at 40 x 20 with E = 1.5, 2,
-2.2, 2.5 and 3 kPa over the whole ramp 44, 24, 15, 15, 14 against 45, 24, 17, 16, 14);
-the ramp's steps are solved as load steps
+benchmarks/README.md); the ramp's steps are solved as load steps
 (``load_step``: :mod:`tofsi.coupling.monolithic` refactorizes the preconditioner's
 small blocks far from the solution). The densities' steps are solved as design
 changes, each to the problem's tolerance. A converged step grows the
@@ -89,7 +83,7 @@ FIRST_STEP = 0.5           # the inflow ramp's first step, from rest
 FIRST_DENSITY_STEP = 0.5   # the densities' first step, from the warm start's
 MIN_DENSITY_STEP = 0.25    # the densities' smallest step: a trial design the path cannot reach fails after two tries
 GROWTH = 1.5               # a converged step's successor is this much longer (at most to the end)
-STEP_TOL = 2e-2            # the largest scaled residual a step short of the path's end is solved to
+STEP_TOL = 1e-2            # the largest scaled residual a step short of the path's end is solved to
 
 Solve = Callable[..., State]      # (params, guess, rho, direct=False, tol=None, load_step=False) -> State
 
