@@ -19,10 +19,10 @@ converged state's exact couplings are built once, for the adjoint
 rebuilt at such a far iterate are rebuilt once more at the first iterate whose merit fell
 below ``NEAR_REBUILD`` of theirs: kept from far away they hold the Newton's tail to a
 linear rate (the large scene's step to its full inflow at 160 x 80: 2.7e-3, 3.7e-4,
-1.3e-5, 2.2e-7, 3.2e-9, 1.3e-10 with the couplings of an iterate at 0.4; 3.3e-4, 9e-6,
-6e-9, 5e-11 with them rebuilt at 2.7e-3: one Newton step fewer, for one rebuild of the
-shape derivatives; at 80 x 40 and 40 x 20, E = 1.5-3 kPa, as many). A Newton whose residual falls by less than
-``STALL_FACTOR`` in ``STALL_ITERATIONS`` steps stops early (a load step's
+1.3e-5, 2.2e-7, 3.2e-9, 1.3e-10 with the couplings of an iterate at 0.42; 3.7e-4, 1.2e-5,
+8e-9, 2.6e-11 with them rebuilt at 2.7e-3: one Newton step fewer, for one rebuild of the
+shape derivatives; at 80 x 40 and 40 x 20, E = 1.5-3 kPa, as many). A Newton whose
+residual falls by less than ``STALL_FACTOR`` in ``STALL_ITERATIONS`` steps stops early (a load step's
 cutback is cheaper than its crawl). In a step of the inflow ramp (``load_step``), after a
 Newton step that contracted by less than ``SLOW_CONTRACTION`` the block preconditioner's small
 diagonal blocks are factorized at the iterate (the structure's and the mesh's; the flow's
