@@ -123,7 +123,7 @@ class Problem:
     def resume_factors(self, table: dict | None, arrays: dict, stage: Stage) -> None:
         """The factors the next forward solve starts from, made again from a checkpoint's key
         (:meth:`CarriedFactors.record`, taken at ``stage``); None: none."""
-        self.factors = restore_factors(table, arrays, stage, self.model.system_for(stage))
+        self.factors = None if table is None else restore_factors(table, arrays, stage, self.model.system_for(stage))
 
     # ---- evaluation -------------------------------------------------------------------
     def densities(self, gamma) -> np.ndarray:
