@@ -38,12 +38,6 @@ class JacobianPoint:
         return cls(np.array(rho, dtype=float), params,
                    {k: np.array(v, dtype=float) for k, v in fields.items() if v is not None})
 
-    def same_as(self, other: "JacobianPoint") -> bool:
-        """Bitwise the same point."""
-        return (self.params == other.params and np.array_equal(self.rho, other.rho)
-                and self.fields.keys() == other.fields.keys()
-                and all(np.array_equal(v, other.fields[k]) for k, v in self.fields.items()))
-
     def jacobian(self, system, comp: tuple[str, ...]) -> BlockMatrix:
         """The block Jacobian of the cycle ``comp`` of ``system`` at this point (with its exact
         couplings), named by it."""
