@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from dataclasses import asdict
 
-import numpy as np
 
 from tofsi.core.blocks import Continuation, Stage
 from tofsi.coupling.jacobian_point import JacobianPoint

@@ -51,8 +51,7 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
             arrays[f"e{k}_quality"] = np.array(e.quality)
         arrays[f"e{k}_ramp"] = np.array(e.ramp)
     fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
-    factors = getattr(problem, "factors", None)          # a problem that carries them (the serial one)
-    carried = factors.record() if factors is not None else None
+    carried = problem.factors.record() if problem.factors is not None else None
     if carried is not None:
         arrays.update(carried[1])
     meta = {"scene": problem.scene.name, "stage": run.stage, "n_stage_evaluations": len(run.log),
@@ -60,7 +59,7 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
             "failures": failures, "fallbacks_at_start": run.fallbacks_at_start,
             "params": record(run.record), "pending": [record(r) for r in run.pending],
             "previous": record(run.previous),
-            "factors": None if carried is None else {**carried[0], "stage": record(factors.stage)},
+            "factors": None if carried is None else {**carried[0], "stage": record(problem.factors.stage)},
             "identity": identity(problem.scene, problem.model.mesh, problem.n_design)}
 
     def write(tmp):

@@ -186,8 +186,7 @@ class Optimizer:
             self.history, self.fallbacks, run, state = resume_stage(self.checkpoint_path, p)
             previous = run.previous
             p.set_guess(state)
-            if hasattr(p, "resume_factors"):             # a problem that carries them (the serial one)
-                p.resume_factors(*read_factors(self.checkpoint_path, p))
+            p.resume_factors(*read_factors(self.checkpoint_path, p))
         for stage in range(run.stage if run else 0, end):
             pending = run.pending + [run.record] if run else [continuation(self.scene, stage)]
             while pending:                            # the stage's record, after the bridges it needs
