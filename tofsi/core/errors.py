@@ -55,7 +55,10 @@ class NumericalError(TofsiError, RuntimeError):
         self.solved = {}          # the fields a coupled sweep solved before this failure, by name
         super().__init__(message)
 
-    def __reduce__(self):                      # picklable; the state stays behind
+    def __reduce__(self):
+        """Picklable (errors of study worker processes): the message and the diagnostic. The
+        state and the solved fields stay behind: they are large, and only the process that
+        failed continues from them (the inflow ramp), never a receiver of the error."""
         return (NumericalError, (str(self), self.diagnostic))
 
 
