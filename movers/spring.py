@@ -53,9 +53,9 @@ class SpringParams:
                              "midpoint extrapolated from the increment before (midpoint, second order)")
     first_increment: float = option(0.0, ge=0, lt=1,
                                     doc="the first increment's share of the motion, the others equal "
-                                        "(0: all equal); with scheme midpoint the first increment "
-                                        "alone is first order, so a small one (0.1) keeps the path "
-                                        "second order")
+                                        "(0: all equal; one increment takes it all); with scheme "
+                                        "midpoint the first increment alone is first order, so a "
+                                        "small one (0.1) keeps the path second order")
     torsion_scale: float = option(1.0, gt=0, doc="torsional stiffness scale TSC")
     tangent_solver: str = option("direct", choices=("direct", "amg"),
                                  doc="the tangent's linear solver: sparse LU or AMG-CG")
