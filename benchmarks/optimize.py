@@ -90,17 +90,26 @@ class FloorCounter:
     def mark(self):
         self.marks.append((time.process_time(), dict(self.count), dict(self.seconds)))
 
-    def report(self, first: int = 1) -> dict:
+    def report(self, first: int = 1, blocks=()) -> dict:
         """Per iteration between the marks ``first`` and the last (the iteration before mark
-        ``first``, the first one measured, left out)."""
+        ``first``, the first one measured, left out). ``blocks``: the sizes of the systems one
+        iteration factorizes at least once when it builds its factors afresh (the two-way
+        Newton's diagonal blocks): the iteration's time over one factorization of each (each
+        at its mean time over the whole run), the floor issue 32 sets, also where the
+        iterations factorize less (factors carried from the previous design)."""
         (t0, c0, s0), (t1, c1, s1) = self.marks[first], self.marks[-1]
         n = len(self.marks) - 1 - first
         rows = {k: {"per_iteration": (c1[k] - c0.get(k, 0)) / n, "seconds": (s1[k] - s0.get(k, 0)) / n}
                 for k in sorted(c1)}
         factorizations = sum(r["seconds"] for k, r in rows.items() if k.startswith("factorization"))
         per_iteration = (t1 - t0) / n
-        return {"seconds_per_iteration": per_iteration, "factorization_s": factorizations,
-                "iteration_over_factorizations": per_iteration / factorizations if factorizations else float("inf"), "pieces": rows}
+        out = {"seconds_per_iteration": per_iteration, "factorization_s": factorizations,
+               "iteration_over_factorizations": per_iteration / factorizations if factorizations else float("inf"),
+               "pieces": rows}
+        if blocks:
+            each = sum(s1[f"factorization, {n} unknowns"] / c1[f"factorization, {n} unknowns"] for n in blocks)
+            out.update({"one_factorization_each_s": each, "iteration_over_one_factorization_each": per_iteration / each})
+        return out
 
 
 def main() -> None:
@@ -254,7 +263,8 @@ def large(scene, args, write_json) -> None:
            "backend": args.backend, "blas_threads": args.blas_threads,
            "machine": f"{platform.machine()}, Python {platform.python_version()}"}
     if floor:
-        row["floor"] = floor.report(first=0)            # the warm two-way iterations
+        sizes = [b.size for b in problem.model.system_for(problem.stage).blocks]
+        row["floor"] = floor.report(first=0, blocks=sizes)  # the warm two-way iterations
     print(json.dumps(row, indent=2))
     tag = "".join(f"_{s.replace('=', '-')}" for s in args.set)
     row["set"] = args.set

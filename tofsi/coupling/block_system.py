@@ -171,10 +171,13 @@ class BlockSystem:
                                    for B, b in zip(blocks, names, strict=True)], format="csr"))
         return sp.vstack(rows, format="csr")                    # no COO round trip, unlike bmat
 
-    def block_jacobian(self, lins: dict[str, Linearization], names, kept: dict | None = None) -> BlockMatrix:
+    def block_jacobian(self, lins: dict[str, Linearization], names, kept: dict | None = None,
+                       at=None) -> BlockMatrix:
         """The block Jacobian of :meth:`jacobian` kept as its blocks (products, a block
         preconditioner's diagonal blocks), assembled by nobody unless a whole-matrix LU asks
-        (a coupling known by its products only stays a :class:`~tofsi.linalg.LinearMap`)."""
+        (a coupling known by its products only stays a :class:`~tofsi.linalg.LinearMap`);
+        ``at``: the point ``lins`` were taken at (:class:`~tofsi.coupling.jacobian_point.JacobianPoint`,
+        the matrix's ``origin``)."""
         kept = kept or {}
         blocks = {}
         for i, a in enumerate(names):
@@ -184,7 +187,7 @@ class BlockSystem:
                      (lin.coupling(b) if b in self.by_name[a].inputs else None))
                 if B is not None:
                     blocks[(i, j)] = B if sp.isspmatrix_csr(B) or isinstance(B, LinearMap) else sp.csr_matrix(B)
-        return BlockMatrix(blocks, [self.by_name[n].size for n in names])
+        return BlockMatrix(blocks, [self.by_name[n].size for n in names], origin=at)
 
     def ordering(self, names) -> np.ndarray | None:
         """Nested-dissection permutation of the stacked unknowns of ``names`` (None: unknown grid);
@@ -221,13 +224,16 @@ class BlockSystem:
 
     # ---- forward solve ------------------------------------------------------------------
     def solve(self, rho: np.ndarray, params: Continuation, guess: State | None = None,
-              progress=None, direct: bool = False, tol: float | None = None, load_step: bool = False) -> State:
+              progress=None, direct: bool = False, tol: float | None = None, load_step: bool = False,
+              factors: dict | None = None) -> State:
         """Every field for densities ``rho``; ``guess`` (a state) warm-starts the solvers;
         ``direct``: the blocks' own solves without their own continuation (``FieldBlock.solve``),
         for a caller that continues along a path of its own when this fails; ``tol``: the
         cycles' tolerance instead of the settings' (a continuation's step short of its end);
         ``load_step``: a step of the inflow ramp (:func:`~tofsi.coupling.monolithic.solve_monolithic`;
-        its Newton starts from the solver of the guess's cycle, the last step's, where it has one)."""
+        its Newton starts from the solver of the guess's cycle, the last step's, where it has one);
+        ``factors``: else a cycle's solver to start from (by the cycle's names: the previous
+        design's, :mod:`tofsi.optimization.carried_factors`)."""
         fields = {name: None for name in self.names}
         if guess is not None:
             for name in self.names:
@@ -240,7 +246,7 @@ class BlockSystem:
             elif self.method_for(comp) == "monolithic":
                 last = guess.coupled.get(comp) if load_step and guess is not None else None
                 solve_monolithic(self, comp, fields, state, direct, tol, load_step,
-                                 recycled=None if last is None else last.solver)
+                                 recycled=(factors or {}).get(comp) if last is None else last.solver)
             else:
                 self._partitioned(comp, fields, state, progress, direct, tol)
         state.fields = fields

@@ -137,12 +137,15 @@ class CoupledModel:
         return self.systems[key]
 
     def solve(self, rho: np.ndarray, guess: State | None = None, progress=None,
-              stage: Stage | None = None) -> State:
+              stage: Stage | None = None, factors: dict | None = None) -> State:
         """The coupled state for densities ``rho`` (E,) at continuation ``stage`` (default: the
         scene's first); ``guess`` warm-starts the solvers. When a two-way solve fails at the
         full inflow from it, the solve continues from the guess's densities (a two-way state of
         another design) or ramps the inflow from rest (``coupled.load_ramp``,
-        :mod:`tofsi.coupling.load_ramp`; one-way, the flow continues in its Reynolds number itself)."""
+        :mod:`tofsi.coupling.load_ramp`; one-way, the flow continues in its Reynolds number itself).
+        ``factors``: a cycle's linear solver (by the cycle's names) whose factors the solve at
+        the full inflow from ``guess`` starts from (the previous design's,
+        :mod:`tofsi.optimization.carried_factors`); the continuations build their own."""
         t0 = time.perf_counter()
         if self.flow is None and self.structure is None:
             raise InputError("effects.fluid", "none", "nothing to solve: the scene has no flow and no structure")
@@ -153,8 +156,9 @@ class CoupledModel:
 
             def at(p: Continuation, start: State | None, densities=rho, direct: bool = False,
                    tol: float | None = None, load_step: bool = False) -> State:
+                first = start is guess and densities is rho and p is stage.params and not load_step
                 return self.unfolded(system.solve(densities, p, start, progress, direct=direct, tol=tol,
-                                                  load_step=load_step))
+                                                  load_step=load_step, factors=factors if first else None))
             try:
                 state = (ramped(at, stage.params, guess, c.min_load_step, rho, system.names,
                                 inflow_fields=tuple(n for n in system.names if n == "w"))

@@ -53,6 +53,7 @@ import numpy as np
 
 from tofsi.core.errors import NumericalError
 from tofsi.core.iteration import backtracking, forcing_term
+from tofsi.coupling.jacobian_point import JacobianPoint
 from tofsi.linalg import BlockGaussSeidel, BlockMatrix
 
 log = logging.getLogger(__name__)
@@ -64,15 +65,16 @@ SWEEP_TOL = 1e-2         # the scaled residual the starting sweep of a loose sol
 
 
 class CoupledLinearization:
-    """The monolithic Jacobian of a cycle at its solution and the Newton's factorization."""
+    """The monolithic Jacobian of a cycle at its solution (``point``, a
+    :class:`~tofsi.coupling.jacobian_point.JacobianPoint`) and the Newton's factorization."""
 
-    def __init__(self, system, names: tuple[str, ...], lins: dict, solver):
-        self.system, self.names, self.lins, self.solver = system, names, lins, solver
+    def __init__(self, system, names: tuple[str, ...], lins: dict, solver, point=None):
+        self.system, self.names, self.lins, self.solver, self.point = system, names, lins, solver, point
         self._J = None
 
     def matrix(self) -> BlockMatrix:
         if self._J is None:
-            self._J = self.system.block_jacobian(self.lins, self.names)
+            self._J = self.system.block_jacobian(self.lins, self.names, at=self.point)
         return self._J
 
     def solve_transpose(self, b: np.ndarray) -> np.ndarray:
@@ -87,8 +89,8 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
     blocks' linearizations, the cycle's :class:`CoupledLinearization` and the report ``"coupling"``.
     ``load_step``: a step of the inflow ramp, far from its solution (the small blocks refactorized
     after a step that contracted little, or whose GMRES took more iterations beyond a fresh
-    preconditioner's than that refactorization costs, :func:`crept`); ``recycled``: the last load step's solver, whose
-    preconditioner starts this one's (a new one only when it goes stale)."""
+    preconditioner's than that refactorization costs, :func:`crept`); ``recycled``: the last load step's solver (or
+    the previous design's), whose preconditioner starts this one's (a new one only when it goes stale)."""
     s = system.settings
     tol = s.tol if tol is None else tol
     rho, params = state.rho, state.params
@@ -114,7 +116,8 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
                  ", ".join(f"{n} {v:.2e}" for n, v in zip(comp, norms, strict=True)))
         if max(norms) <= tol:
             state.linearizations.update(lins)
-            state.coupled[comp] = CoupledLinearization(system, comp, lins, solver)
+            state.coupled[comp] = CoupledLinearization(system, comp, lins, solver,
+                                                       JacobianPoint.at(rho, params, fields))
             state.reports["coupling"] = {"method": "monolithic", "history": history, "tol": tol}
             return
         if it == s.max_iter:
@@ -136,15 +139,16 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
                     for o in getattr(b, "slow_couplings", ()) if o in comp}
         b = -np.concatenate(R)
         eta = forcing_term(merits, tol)           # inexact Newton
+        at = JacobianPoint.at(rho, params, fields)         # names the factors made of this iterate
         found, solver = newton_step(system, comp, lins, kept, b, eta, solver, fields, merit, max(norms),
-                                    history, refactor=load_step and (far or crept(solver)))
+                                    history, refactor=load_step and (far or crept(solver)), at=at)
         if found is None and (kept or eta > EXACT_STEP):  # not a descent direction: the exact one
             log.info("monolithic Newton %d: no decrease along the %s step; the exact Newton step "
                      "from here on", it, "quasi-Newton" if kept else "inexact")
             history[-1]["exact_step"] = True
             kept = {}                                      # the true couplings from here on
             found, solver = newton_step(system, comp, lins, kept, b, EXACT_STEP, solver, fields, merit,
-                                        max(norms), history)
+                                        max(norms), history, at=at)
         if found is None:
             raise NumericalError("monolithic coupling: line search found no decrease",
                                  {"history": history})
@@ -188,12 +192,14 @@ def scaled_merit(blocks, scales, values: dict, rho, params, linearize: bool = Fa
     return worst, lins_at
 
 
-def newton_step(system, comp, lins, kept, b, rtol, solver, fields, merit, norm, history, refactor=False):
-    """One Newton step of the monolithic solve: the block Jacobian (with the ``kept`` couplings)
-    solved to ``rtol`` (``refactor``: far from the solution, with the preconditioner's small blocks
+def newton_step(system, comp, lins, kept, b, rtol, solver, fields, merit, norm, history, refactor=False,
+                at=None):
+    """One Newton step of the monolithic solve: the block Jacobian (with the ``kept`` couplings;
+    ``at``: the iterate's :class:`~tofsi.coupling.jacobian_point.JacobianPoint`) solved to
+    ``rtol`` (``refactor``: far from the solution, with the preconditioner's small blocks
     factorized at this iterate first), then the backtracking line search on the merit. Returns
     ``(the accepted fields or None, the solver)`` -- the whole Jacobian's LU when GMRES fails."""
-    J = system.block_jacobian(lins, comp, kept)
+    J = system.block_jacobian(lins, comp, kept, at=at)
     if refactor:
         refactor_small_blocks(solver, J, history)
     try:

@@ -51,6 +51,11 @@ class BlockGaussSeidel:
     sizes : the fields' sizes, in the order of ``A``'s unknowns (only for an assembled ``A``)
     orderings : per field, a fill-reducing permutation of its unknowns (or None)
     direct : ``(matrix, perm) -> DirectSolver`` on the model's backend (default: the process's)
+
+    ``origins[i]``: the ``origin`` of the matrix whose diagonal block ``i`` was factorized
+    (:attr:`BlockMatrix.origin`; None where unknown), so that the factors can be named by what
+    they were made of and made again from it (a resumed optimization,
+    :mod:`tofsi.optimization.carried_factors`).
     """
 
     exact = False
@@ -75,6 +80,7 @@ class BlockGaussSeidel:
         n = len(A.sizes)
         self.orderings = list(orderings or [None] * n)
         self.diagonal = [self.direct(canonical_csr(A.blocks[(i, i)]), perm=self.orderings[i]) for i in range(n)]
+        self.origins = [A.origin] * n
         self.lower, self.upper_t = self._couplings(A)
         self.memory_bytes = sum(d.memory_bytes for d in self.diagonal)
         self._solve = [d.preconditioner(False) for d in self.diagonal]      # triangular solves only
@@ -97,6 +103,7 @@ class BlockGaussSeidel:
             self.memory_bytes -= self.diagonal[i].memory_bytes
             self.diagonal[i] = self._solve[i] = self._solve_t[i] = None
             self.diagonal[i] = self.direct(canonical_csr(A.blocks[(i, i)]), perm=self.orderings[i])
+            self.origins[i] = A.origin
             self.memory_bytes += self.diagonal[i].memory_bytes
             self._solve[i] = self.diagonal[i].preconditioner(False)
             self._solve_t[i] = self.diagonal[i].preconditioner(True)

@@ -76,9 +76,13 @@ def _is_map(B) -> bool:
 
 class BlockMatrix:
     """``blocks[(i, j)]`` (sparse, or absent: zero) of a matrix whose unknowns are stacked in
-    blocks of ``sizes``; immutable. ``A @ v``, ``A.T``, :meth:`sub` and :meth:`tocsr`."""
+    blocks of ``sizes``; immutable. ``A @ v``, ``A.T``, :meth:`sub` and :meth:`tocsr`.
+    ``origin``: what the blocks were computed from, where the caller knows it (a Newton's
+    iterate: :class:`tofsi.coupling.jacobian_point.JacobianPoint`), so that factors made of them
+    can name it; None where unknown (not kept by :attr:`T` or :meth:`sub`)."""
 
-    def __init__(self, blocks: dict, sizes):
+    def __init__(self, blocks: dict, sizes, origin=None):
+        self.origin = origin
         self.sizes = tuple(int(s) for s in sizes)
         self.starts = np.concatenate([[0], np.cumsum(self.sizes)]).astype(int)
         n = int(self.starts[-1])

@@ -9,7 +9,10 @@ load-ramp counts: an :class:`~tofsi.optimization.protocol.Evaluation`) or, for a
 design whose solve failed, the failure (a ``FailedEvaluation``, so
 the replay falls back exactly where the run did); the history so far; the
 stage's start and scale; the last coupled state's fields (the next solve's
-warm start); and the problem's identity (:func:`tofsi.optimization.resume.identity`).
+warm start); the key of the block factors the next two-way solve starts from
+(:mod:`tofsi.optimization.carried_factors`: what they were factorized from, so
+a resume makes them again bitwise); and the problem's identity
+(:func:`tofsi.optimization.resume.identity`).
 Written atomically after every computed evaluation; read back into the
 running stage a resume restarts (:func:`resume_stage`).
 """
@@ -48,11 +51,15 @@ def write_checkpoint(path, problem, run, history, state: State) -> None:
             arrays[f"e{k}_quality"] = np.array(e.quality)
         arrays[f"e{k}_ramp"] = np.array(e.ramp)
     fields = {f"state_{k}": v for k, v in state.fields.items() if v is not None}
+    carried = problem.factors.record() if problem.factors is not None else None
+    if carried is not None:
+        arrays.update(carried[1])
     meta = {"scene": problem.scene.name, "stage": run.stage, "n_stage_evaluations": len(run.log),
             "scale": run.scale, "history": [h.row() for h in history], "stage_start": run.start.tolist(),
             "failures": failures, "fallbacks_at_start": run.fallbacks_at_start,
             "params": record(run.record), "pending": [record(r) for r in run.pending],
             "previous": record(run.previous),
+            "factors": None if carried is None else {**carried[0], "stage": record(problem.factors.stage)},
             "identity": identity(problem.scene, problem.model.mesh, problem.n_design)}
 
     def write(tmp):
@@ -106,6 +113,17 @@ def read_stage(path, problem) -> tuple[dict, list[Evaluation | FailedEvaluation]
     state = State(rho=data["rho"], converged=True,
                   fields={k[len("state_"):]: v for k, v in data.items() if k.startswith("state_")})
     return meta, replay, state
+
+
+def read_factors(path, problem) -> tuple[dict | None, dict, Stage | None]:
+    """The checkpoint's key of the carried block factors: ``(table, arrays, stage)``, or
+    ``(None, {}, None)`` where it holds none (checked as :func:`read_stage` checks)."""
+    meta, data = read_checkpoint(path)
+    check_resume(meta, data, problem, path)
+    table = meta.get("factors")
+    if table is None:
+        return None, {}, None
+    return table, {k: v for k, v in data.items() if k.startswith("factors")}, stage_record(table["stage"])
 
 
 def resume_stage(path, problem) -> tuple[list[Iteration], int, StageRun, State]:

@@ -58,7 +58,7 @@ import nlopt
 import numpy as np
 
 from tofsi.core.blocks import Stage
-from tofsi.optimization.checkpoint import resume_stage, write_checkpoint
+from tofsi.optimization.checkpoint import read_factors, resume_stage, write_checkpoint
 from tofsi.coupling.coupled import continuation
 from tofsi.core.errors import InputError, NumericalError
 from tofsi.core.finite import require_finite
@@ -186,6 +186,7 @@ class Optimizer:
             self.history, self.fallbacks, run, state = resume_stage(self.checkpoint_path, p)
             previous = run.previous
             p.set_guess(state)
+            p.resume_factors(*read_factors(self.checkpoint_path, p))
         for stage in range(run.stage if run else 0, end):
             pending = run.pending + [run.record] if run else [continuation(self.scene, stage)]
             while pending:                            # the stage's record, after the bridges it needs

@@ -9,8 +9,11 @@
 One forward solve and one adjoint solve per quantity at each new design,
 cached (keyed by the design and the continuation parameters), because an
 optimizer asks for the objective and every constraint at the same point.
-The previous state warm-starts the next forward solve; every solve creates
-its own linear solvers, so its result depends only on its inputs.
+The previous state warm-starts the next forward solve, and a two-way solve's
+Newton starts from the block factors the previous design's solve left
+(:attr:`Problem.factors`, :mod:`tofsi.optimization.carried_factors`): a
+solve's result depends only on its inputs, these two included, and both are
+in the optimizer's checkpoint (the factors by what they were made of).
 The continuation stage -- its numbers (projection sharpness, SIMP penalty,
 Brinkman q) and its structure (coupling, the structure's material) -- is one
 frozen record, :attr:`Problem.stage`, set whole with :meth:`Problem.set_stage`
@@ -27,6 +30,7 @@ import numpy as np
 from adjoint import Adjoint
 from tofsi.core.blocks import Continuation, Stage
 from tofsi.coupling.coupled import CoupledModel, State
+from tofsi.optimization.carried_factors import CarriedFactors, restore as restore_factors
 from tofsi.optimization.design import DesignMap
 from tofsi.optimization.design_file import read_design
 from tofsi.core.errors import InputError
@@ -77,6 +81,7 @@ class Problem:
         self.volume_fraction = VolumeFraction(self.model.mesh, self.map.design)
         self.kept_point = Kept()
         self._guess: State | None = None
+        self.factors: CarriedFactors | None = None     # the last two-way solve's, for the next one
         self.evaluations = 0
         self.initial_design()                      # a bad design.initial fails here, early
 
@@ -114,6 +119,11 @@ class Problem:
     def set_guess(self, state: State | None) -> None:
         """The state the next forward solve starts from."""
         self._guess = state
+
+    def resume_factors(self, table: dict | None, arrays: dict, stage: Stage) -> None:
+        """The factors the next forward solve starts from, made again from a checkpoint's key
+        (:meth:`CarriedFactors.record`, taken at ``stage``); None: none."""
+        self.factors = None if table is None else restore_factors(table, arrays, stage, self.model.system_for(stage))
 
     # ---- evaluation -------------------------------------------------------------------
     def densities(self, gamma) -> np.ndarray:
@@ -163,8 +173,10 @@ class Problem:
         return self.kept_point.get(input_key(gamma, self.stage), lambda: self._new_point(gamma))
 
     def _new_point(self, gamma) -> "DesignPoint":
-        state = self.model.solve(self.densities(gamma), self._guess, stage=self.stage)
+        carried = self.factors.for_stage(self.stage) if self.factors is not None else None
+        state = self.model.solve(self.densities(gamma), self._guess, stage=self.stage, factors=carried)
         self._guess = state.data()
+        self.factors = CarriedFactors.of(state, self.stage)
         self.evaluations += 1
         return DesignPoint(gamma.copy(), state)
 

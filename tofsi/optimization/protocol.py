@@ -71,7 +71,10 @@ class DesignProblem(Protocol):
     map : the design map (filter and projection; ``map.design``: the design elements);
     objective : the registry objective it minimizes (its label and units);
     stage : the current continuation stage (:class:`~tofsi.core.blocks.Stage`);
-    evaluations : the evaluations computed so far (solves, not kept ones).
+    evaluations : the evaluations computed so far (solves, not kept ones);
+    factors : what the next solve starts from besides its guess, recorded in the checkpoint
+        (the serial problem's carried block factors,
+        :class:`~tofsi.optimization.carried_factors.CarriedFactors`; None where there are none).
     """
 
     scene: Any
@@ -80,6 +83,7 @@ class DesignProblem(Protocol):
     objective: Any
     stage: Stage
     evaluations: int
+    factors: Any
 
     @property
     def n_design(self) -> int: ...
@@ -92,6 +96,10 @@ class DesignProblem(Protocol):
 
     def set_guess(self, state: State | None) -> None:
         """The state the next solve starts from (a resumed run's checkpointed state)."""
+
+    def resume_factors(self, table: dict | None, arrays: dict, stage: Stage | None) -> None:
+        """The factors the next solve starts from, made again from a checkpoint's record of
+        them (:func:`tofsi.optimization.checkpoint.read_factors`; ``table`` None: none)."""
 
     def densities(self, gamma) -> np.ndarray:
         """The physical densities ``(E,)`` of ``gamma`` at the current stage (no solve)."""

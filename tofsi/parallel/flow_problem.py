@@ -64,6 +64,11 @@ class DistributedFlowProblem:
     (the velocity block's AMG: ``solver.flow_amg``)."""
 
     refuse = staticmethod(check)             # what the scene must be (before anything is built)
+    factors = None                           # no factors carried between designs: each solve makes its own
+
+    def resume_factors(self, table, arrays, stage) -> None:
+        """Nothing to make again: the solves by slabs carry no factors between designs (a
+        serial run's record of its own, if the checkpoint holds one, is not used)."""
 
     def __init__(self, scene, comm=None):
         self.refuse(scene)
@@ -209,6 +214,13 @@ class Leader:
     def set_stage(self, stage) -> None:
         self._announce("stage", stage)
         self.problem.set_stage(stage)
+
+    @property
+    def factors(self):
+        return self.problem.factors
+
+    def resume_factors(self, table, arrays, stage) -> None:
+        self.problem.resume_factors(table, arrays, stage)
 
     def set_guess(self, state: State | None) -> None:
         self._announce("guess", None if state is None else State(state.rho, dict(state.fields)))
