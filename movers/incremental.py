@@ -1,7 +1,8 @@
 """Incremental linear mesh motion on the updated mesh, its tangent and its reverse sweep.
 
 Shared by the spring mover and the incremental linear-elastic mover: the
-prescribed motion is applied in ``N`` equal increments ``d = u / N``;
+prescribed motion is applied in ``N`` increments ``d_k = h_k u`` (equal,
+``h_k = 1/N``, or a smaller first one: :func:`schedule`);
 increment ``k`` uses the stiffness of the *current* mesh, scaled per quad by
 the stiffening factors ``f``, ``K(x_k) = sum_e f_e K0_e(X + x_k)``, and solves
 
@@ -9,13 +10,15 @@ the stiffening factors ``f``, ``K(x_k) = sum_e f_e K0_e(X + x_k)``, and solves
 
 with ``W = 1``, ``S_c = 0`` unless the problem is density-blended
 (:mod:`movers.blend`). The stiffness may instead be taken at the increment's
-midpoint extrapolated from the increment before, ``y_k = x_k + (x_k - x_(k-1))/2``
+midpoint extrapolated from the increment before,
+``y_k = x_k + a_k (x_k - x_(k-1))``, ``a_k = h_k / (2 h_(k-1))``
 (:class:`IncrementKernel`'s ``extrapolation``): the same one solve per
 increment, but the path's error falls like ``1/N^2`` instead of ``1/N``, so
-fewer increments reach the same mesh. Below, ``x_k`` in ``K(x_k)`` and its
-shape derivative then reads ``y_k``, whose tangent is
-``(1 + a) x_dot_k - a x_dot_(k-1)`` and whose adjoint goes to ``x_k`` and
-``x_(k-1)`` likewise. The pattern (element dofs, Dirichlet mask) is built
+fewer increments reach the same mesh (the first, at its start, is first
+order: a smaller first one, :class:`IncrementKernel`'s ``first``). Below,
+``x_k`` in ``K(x_k)`` and its shape derivative then reads ``y_k``, whose
+tangent is ``(1 + a_k) x_dot_k - a_k x_dot_(k-1)`` and whose adjoint goes to
+``x_k`` and ``x_(k-1)`` likewise. The pattern (element dofs, Dirichlet mask) is built
 once; each increment only recomputes element matrices. Consecutive
 increments' matrices differ by O(1/N), so a
 :class:`~tofsi.linalg.RecyclingSolver` solves most of them with a few GMRES
@@ -25,12 +28,12 @@ Reverse sweep (vector-Jacobian product of ``u, f, s -> x``): with ``xbar`` the
 adjoint of ``x_N``, for ``k = N-1 .. 0``
 
     (W K_ff + S_c)^T lam_f = xbar_f,   lam_p = xbar_p - (K^T W lam_f)_p,
-    dbar_f += S_c lam_f,   dbar_p += lam_p,   fbar_e -= (W lam)_e . K0_e dx_e,
+    dbar_k,f = S_c lam_f,   dbar_k,p = lam_p,   fbar_e -= (W lam)_e . K0_e dx_e,
     sbar_i -= lam_i . (c_i (dx_i - d_i) - (K dx)_i),
     xbar -= d/dx_k [(W lam_f) . K(x_k) dx]        (shape derivative, complex step),
 
-and ``ubar = dbar / N``. Tangent sweep (Jacobian-vector product of ``u -> x``,
-``f`` and ``s`` held): for ``k = 0 .. N-1`` from ``x_dot_0 = 0``, ``d_dot = u_dot / N``,
+and ``ubar = sum_k h_k dbar_k``. Tangent sweep (Jacobian-vector product of ``u -> x``,
+``f`` and ``s`` held): for ``k = 0 .. N-1`` from ``x_dot_0 = 0``, ``d_dot = h_k u_dot``,
 
     (W K_ff + S_c) dx_dot_f = [W (-K_fp d_dot_p - d/dx_k[K(x_k) dx] x_dot_k) + S_c d_dot]_f,
     dx_dot_p = d_dot_p,   x_dot_(k+1) = x_dot_k + dx_dot.
@@ -144,21 +147,22 @@ def stiffness_and_system(problem: MotionProblem, element_matrices: ElementMatric
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
                    element_matrices: ElementMatrices, solver, report: MoveReport,
                    progress=None, blend=None, record: MoveRecord | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Apply ``target`` (2n,) in ``n`` increments; returns ``x_N`` and ``[x_0, ..., x_N]``
-    (``record`` receives what the derivatives reuse)."""
+    """Apply ``target`` (2n,) in ``n`` increments (their shares of it and stiffness points:
+    :func:`schedule`); returns ``x_N`` and ``[x_0, ..., x_N]`` (``record`` receives what the
+    derivatives reuse)."""
     x = np.zeros_like(target)
     states = [x]
-    step = target / n
+    fractions, extrapolations = schedule(element_matrices, n)
     dx = None
-    a = getattr(element_matrices, "extrapolation", 0.0)
     for k in range(n):
+        a = extrapolations[k]
         at = x + a * dx if a and dx is not None else x
-        dx = increment(problem, element_matrices, x, step, solver, report, guess=dx, blend=blend, record=record,
-                       index=k, at=at)
+        dx = increment(problem, element_matrices, x, fractions[k] * target, solver, report, guess=dx, blend=blend,
+                       record=record, index=k, at=at)
         x = x + dx
         states.append(x)
         report.increments += 1
-        quality = quality_record(problem, x.reshape(-1, 2), (k + 1) / n)
+        quality = quality_record(problem, x.reshape(-1, 2), float(np.sum(fractions[:k + 1])))
         report.quality.append(quality)
         if progress:
             progress(k + 1, n, quality)
@@ -172,16 +176,22 @@ class IncrementKernel:
     form, else by complex step (eight evaluations of the matrices).
 
     ``extrapolation`` ``a``: where increment ``k >= 1`` takes its stiffness,
-    ``y_k = x_k + a (x_k - x_(k-1))`` (:func:`stiffness_points`): 0, the start of the increment
-    (forward Euler in the load, the paper's); 1/2, its midpoint extrapolated from the increment
-    before (second order in the increment size at the same one solve per increment). ``key``:
-    the matrices' inputs besides the corners (:func:`~tofsi.core.kept.input_key`), or None; with
-    it the first increment's matrices and system are kept (:func:`stiffness_and_system`)."""
+    ``y_k = x_k + a (h_k / h_(k-1)) (x_k - x_(k-1))`` (:func:`schedule`, ``h_k`` the increments'
+    shares of the motion): 0, the start of the increment (forward Euler in the load, the
+    paper's); 1/2, its midpoint extrapolated from the increment before (second order in the
+    increment size at the same one solve per increment). ``first``: the first increment's share
+    of the motion, the others equal (0: all equal). With ``a = 1/2`` the first increment alone
+    takes its stiffness at its start (nothing before it to extrapolate from), so its error is
+    first order: a small first increment (the large scene's 0.1 of 3) keeps the whole path
+    second order. ``key``: the matrices' inputs besides the corners
+    (:func:`~tofsi.core.kept.input_key`), or None; with it the first increment's matrices and
+    system are kept (:func:`stiffness_and_system`)."""
 
     def __init__(self, matrices: ElementMatrices, force_derivative=None, extrapolation: float = 0.0,
-                 key: tuple | None = None):
+                 key: tuple | None = None, first: float = 0.0):
         self.matrices, self.closed_form = matrices, force_derivative
         self.extrapolation = float(extrapolation)
+        self.first = float(first)
         self.key = key
 
     def __call__(self, Xe: np.ndarray) -> np.ndarray:
@@ -193,11 +203,28 @@ class IncrementKernel:
         return corner_derivatives(lambda Xc: np.einsum("eab,eb->ea", self.matrices(Xc), v), Xe)
 
 
-def stiffness_points(states: list[np.ndarray], extrapolation: float) -> list[np.ndarray]:
-    """Where each increment took its stiffness: ``y_0 = x_0``, ``y_k = x_k + a (x_k - x_(k-1))``
-    (``a`` = ``extrapolation``, :class:`IncrementKernel`), from ``states`` ``[x_0, ..., x_N]``."""
-    a = extrapolation
-    return [states[k] + a * (states[k] - states[k - 1]) if a and k else states[k] for k in range(len(states) - 1)]
+def schedule(kernel, n: int) -> tuple[np.ndarray, list[float]]:
+    """The ``n`` increments' shares ``h_k`` of the motion (summing to 1; the first
+    :class:`IncrementKernel`'s ``first`` where it is set and ``n > 1``, the others equal) and their
+    extrapolations ``a_k`` (``a_0 = 0``, ``a_k = a h_k / h_(k-1)``, ``a`` the kernel's
+    ``extrapolation``): increment ``k`` moves by ``h_k`` times the target with the stiffness at
+    ``y_k = x_k + a_k (x_k - x_(k-1))``, the midpoint of the increment (``a = 1/2``) extrapolated
+    from the increment before, whatever their sizes."""
+    first = float(getattr(kernel, "first", 0.0))
+    a = float(getattr(kernel, "extrapolation", 0.0))
+    if first and n > 1:
+        fractions = np.full(n, (1.0 - first) / (n - 1))
+        fractions[0] = first
+    else:
+        fractions = np.full(n, 1.0 / n)
+    return fractions, [a * fractions[k] / fractions[k - 1] if a and k else 0.0 for k in range(n)]
+
+
+def stiffness_points(states: list[np.ndarray], extrapolations: list[float]) -> list[np.ndarray]:
+    """Where each increment took its stiffness: ``y_k = x_k + a_k (x_k - x_(k-1))`` (``a_k`` the
+    ``extrapolations`` of :func:`schedule`, ``a_0 = 0``), from ``states`` ``[x_0, ..., x_N]``."""
+    return [states[k] + extrapolations[k] * (states[k] - states[k - 1]) if extrapolations[k] else states[k]
+            for k in range(len(states) - 1)]
 
 
 class IncrementDerivatives:
@@ -234,8 +261,8 @@ class IncrementDerivatives:
         self.trusted: dict[tuple[int, bool], bool] = {}    # (increment, transposed) -> raw solves suffice
         self.solvers: list = [None if record is None else record.factors.get(k) for k in range(len(states) - 1)]
         self.increments, self.systems = [], []
-        self.extrapolation = kernel.extrapolation
-        for k, y_k in enumerate(stiffness_points(states, kernel.extrapolation)):
+        self.fractions, self.extrapolations = schedule(kernel, len(states) - 1)
+        for k, y_k in enumerate(stiffness_points(states, self.extrapolations)):
             dx = states[k + 1] - states[k]
             Xe = problem.points[problem.quads] + y_k.reshape(-1, 2)[problem.quads]
             K0 = kernel(Xe) if record is None else record.matrices[k]
@@ -322,26 +349,26 @@ def derivatives_of(problem: MotionProblem, result, kernel: IncrementKernel) -> I
 def increments_jvp(problem: MotionProblem, result, kernel: IncrementKernel, t_dot: np.ndarray) -> np.ndarray:
     """Tangent of the move ``result`` (its trajectory, target, solver and blend) along a change
     ``t_dot`` (2n,) of its target, the stiffening and the blend held: ``x_dot`` (2n,). For
-    ``k = 0 .. N-1``, from ``x_dot_0 = 0`` and ``d_dot = t_dot / N``, each increment's own system
+    ``k = 0 .. N-1``, from ``x_dot_0 = 0`` and ``d_dot = h_k t_dot`` (:func:`schedule`), each
+    increment's own system
 
         A_k dx_dot = [W (-K_k d_dot_p - f D_k y_dot_k) + S_c d_dot]_f,  dx_dot_p = d_dot_p,
         x_dot_(k+1) = x_dot_k + dx_dot,
 
-    ``y_dot_k = x_dot_k + a (x_dot_k - x_dot_(k-1))`` the stiffness point's tangent
-    (:class:`IncrementKernel`'s ``extrapolation`` ``a``)."""
+    ``y_dot_k = x_dot_k + a_k (x_dot_k - x_dot_(k-1))`` the stiffness point's tangent
+    (:func:`schedule`'s ``a_k``)."""
     derivatives = derivatives_of(problem, result, kernel)
     blend, bc = result.blend, problem.bc
-    n = len(derivatives.increments)
-    step = np.asarray(t_dot, dtype=float).reshape(-1) / n
-    step_p = np.where(bc.is_fixed, step, 0.0)
-    moved = bool(np.any(step_p))
-    a = derivatives.extrapolation
-    x_dot = x_dot_before = np.zeros_like(step)
+    t_dot = np.asarray(t_dot, dtype=float).reshape(-1)
+    moved = bool(np.any(t_dot[bc.fixed]))
+    x_dot = x_dot_before = np.zeros_like(t_dot)
     for k, inc in enumerate(derivatives.increments):
+        step = derivatives.fractions[k] * t_dot     # d_dot of increment k
+        a = derivatives.extrapolations[k]
         rhs = np.zeros_like(step) if blend is None else blend.diag * step       # S_c d_dot
         if moved:
-            rhs -= derivatives.edge_apply(k, step_p, step.size)
-        if inc.WD is not None:                      # y_dot_k = x_dot_k + a (x_dot_k - x_dot_(k-1))
+            rhs -= derivatives.edge_apply(k, np.where(bc.is_fixed, step, 0.0), step.size)
+        if inc.WD is not None:                      # y_dot_k = x_dot_k + a_k (x_dot_k - x_dot_(k-1))
             rhs -= inc.WD @ (x_dot + a * (x_dot - x_dot_before) if a else x_dot)
         rhs[bc.fixed] = step[bc.fixed]
         dx = derivatives.solve(k, rhs)
@@ -359,28 +386,29 @@ def increments_vjp(problem: MotionProblem, result, kernel: IncrementKernel, xbar
     derivatives = derivatives_of(problem, result, kernel)
     blend, bc, dofs = result.blend, problem.bc, problem.dofs
     n = len(derivatives.increments)
-    step = result.target / n
     xbar = np.array(xbar, dtype=float).reshape(-1)
-    step_bar = np.zeros_like(xbar)
+    target_bar = np.zeros_like(xbar)
     f_bar = np.zeros(len(problem.quads))
     s_bar = np.zeros(problem.n_nodes)
-    a = derivatives.extrapolation
-    carry = 0.0                                     # -a y_bar_(k+1): increment k+1's share of x_k's adjoint
+    carry = 0.0                                     # -a_(k+1) y_bar_(k+1): increment k+1's share of x_k's adjoint
     for k in range(n - 1, -1, -1):
         inc = derivatives.increments[k]
+        a, h = derivatives.extrapolations[k], derivatives.fractions[k]
+        step_bar = np.zeros_like(xbar)              # increment k's d_bar (d = h_k target)
         lam = derivatives.solve_transpose(k, bc.homogenize(xbar))
         lam[bc.fixed] = 0.0
-        step_bar[bc.fixed] += xbar[bc.fixed] - derivatives.edge_apply(k, lam, lam.size, transpose=True)[bc.fixed]
+        step_bar[bc.fixed] = xbar[bc.fixed] - derivatives.edge_apply(k, lam, lam.size, transpose=True)[bc.fixed]
         if blend is not None:                       # the increment's D = W K dx + S_c (dx - d)
-            t_blend, s_part = blend.partials(lam, inc.dx, step, inc.Kdx)
+            t_blend, s_part = blend.partials(lam, inc.dx, h * result.target, inc.Kdx)
             step_bar -= t_blend
             s_bar -= s_part
+        target_bar += h * step_bar
         lam_w = lam if blend is None else blend.weighted(lam)
         f_bar -= np.einsum("ea,ea->e", lam_w[dofs], inc.forces)
         y_bar = None if inc.WD is None else -(inc.WD.T @ lam)    # d/dy_k [(W lam) . f K0(y_k) dx]
-        if a:                                       # y_k = (1 + a) x_k - a x_(k-1)
-            xbar = xbar + carry + ((1 + a) * y_bar if y_bar is not None else 0.0)
-            carry = 0.0 if y_bar is None else -a * y_bar
-        elif y_bar is not None:
-            xbar = xbar + y_bar
-    return step_bar / n, f_bar, s_bar
+        xbar = xbar + carry                         # y_k = (1 + a_k) x_k - a_k x_(k-1)
+        carry = 0.0
+        if y_bar is not None:
+            xbar = xbar + (1 + a) * y_bar if a else xbar + y_bar
+            carry = -a * y_bar if a else 0.0
+    return target_bar, f_bar, s_bar

@@ -8,7 +8,8 @@ updated mesh (see :mod:`movers.incremental`), because the torsional springs
 linearize the angle change (sin d(theta) ~ d(theta)): each at its start as
 the paper does (``scheme = "euler"``, the path errs like 1/N), or at its
 midpoint extrapolated from the increment before (``scheme = "midpoint"``,
-like 1/N^2 for the same one solve per increment).
+like 1/N^2 for the same one solve per increment; the first increment, with
+nothing before it, at its start: ``first_increment`` makes it smaller).
 
 Layered stiffening multiplies both the lineal and the torsional stiffness of
 a quad's triangles by the quad's factor.
@@ -29,7 +30,8 @@ import numpy as np
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
 from movers.increment_solvers import increment_solver
-from movers.incremental import IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp, run_increments
+from movers.incremental import (IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp,
+                                run_increments, schedule)
 from movers.spring_kernel import DIAGONALS, TriangleSplit, quad_force_derivative, quad_stiffness
 from tofsi.mesh import quality
 from tofsi.core.config import option
@@ -49,6 +51,11 @@ class SpringParams:
     scheme: str = option("euler", choices=SCHEMES,
                          doc="each increment's stiffness: at its start (euler, the paper's) or at its "
                              "midpoint extrapolated from the increment before (midpoint, second order)")
+    first_increment: float = option(0.0, ge=0, lt=1,
+                                    doc="the first increment's share of the motion, the others equal "
+                                        "(0: all equal; one increment takes it all); with scheme "
+                                        "midpoint the first increment alone is first order, so a "
+                                        "small one (0.1) keeps the path second order")
     torsion_scale: float = option(1.0, gt=0, doc="torsional stiffness scale TSC")
     tangent_solver: str = option("direct", choices=("direct", "amg"),
                                  doc="the tangent's linear solver: sparse LU or AMG-CG")
@@ -73,7 +80,8 @@ class SpringMover(Mover):
         split = functools.cache(lambda: self.kept_split.get(input_key(codes), lambda: TriangleSplit(codes)))
         return IncrementKernel(lambda Xe: quad_stiffness(Xe, split(), tsc),
                                lambda Xe, v: quad_force_derivative(Xe, v, split(), tsc),
-                               EXTRAPOLATION[self.params.scheme], key=input_key(self.name, codes, tsc))
+                               EXTRAPOLATION[self.params.scheme], key=input_key(self.name, codes, tsc),
+                               first=self.params.first_increment)
 
     @property
     def path_dependent(self) -> bool:
@@ -104,12 +112,13 @@ class SpringMover(Mover):
     def choose_diagonals(self, problem: MotionProblem, target: np.ndarray, solver,
                          report: MoveReport, blend=None) -> np.ndarray:
         """Per-quad diagonal codes from two trial increments with opposite diagonals."""
-        step = target / self.params.increments
         x0 = np.zeros_like(target)
         skew = []
         for code in (0, 1):
             codes = np.full(len(problem.quads), code)
-            dx = increment(problem, self.element_matrices(codes), x0, step, solver, report, blend=blend)
+            kernel = self.element_matrices(codes)
+            step = schedule(kernel, self.params.increments)[0][0] * target       # the first increment's
+            dx = increment(problem, kernel, x0, step, solver, report, blend=blend)
             skew.append(quality.skewness(problem.points + dx.reshape(-1, 2), problem.quads))
         return np.where(skew[1] > skew[0], 1, 0)
 

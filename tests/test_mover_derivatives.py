@@ -23,7 +23,9 @@ CASES = [("yeoh", {"A20": 50.0, "kappa": 2.0, "newton_tol": 1e-13}),
          ("spring", {"increments": 4, "diagonals": "both"}),
          ("spring", {"increments": 3, "diagonals": "selective"}),
          ("spring", {"increments": 4, "diagonals": "both", "scheme": "midpoint"}),
-         ("spring", {"increments": 3, "diagonals": "selective", "scheme": "midpoint"})]
+         ("spring", {"increments": 3, "diagonals": "selective", "scheme": "midpoint"}),
+         ("spring", {"increments": 3, "diagonals": "both", "scheme": "midpoint", "first_increment": 0.1}),
+         ("spring", {"increments": 3, "diagonals": "both", "first_increment": 0.2})]
 
 
 def setup_problem(blended: bool):

@@ -123,11 +123,14 @@ def test_mover_by_slabs_equals_the_serial_mover(tmp_path, mover):
     ["mover.name=spring", "mover.spring.increments=4"],
     ["mover.name=spring", "mover.spring.increments=3", "mover.spring.diagonals=selective"],
     ["mover.name=spring", "mover.spring.increments=4", "mover.spring.scheme=midpoint"],
+    ["mover.name=spring", "mover.spring.increments=3", "mover.spring.scheme=midpoint",
+     "mover.spring.first_increment=0.1"],
     ["mover.name=linear", "mover.linear.increments=3"]])
 def test_a_move_in_increments_by_slabs_equals_the_serial_move(tmp_path, mover):
     """The headline scene's spring analogy in 4 increments (both diagonals), in 3 with the
     selective diagonals (two trial increments, each quad choosing on its rank), in 4 with each
-    increment's stiffness at its extrapolated midpoint (``scheme = "midpoint"``) and linear
+    increment's stiffness at its extrapolated midpoint (``scheme = "midpoint"``), in 3 such with
+    the first 0.1 of the motion (the large scene's, ``first_increment``) and linear
     elasticity in 3, 20 x 10 elements, the wall design bent 8 cm downstream: on two ranks (each
     increment's element matrices on the rank's quads, its system by MUMPS across the ranks) the
     motion equals the serial mover's move, and the tangent sweep along a random ``u_dot`` and the

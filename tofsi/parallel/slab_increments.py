@@ -43,7 +43,7 @@ import numpy as np
 from movers.base import MoveReport, element_apply, quality_record
 from movers.failure import at as place, non_finite_matrices
 from movers.increment_solvers import KEPT_FACTORS_TOL_RATIO
-from movers.incremental import stiffness_points
+from movers.incremental import schedule, stiffness_points
 from movers.spring_kernel import DIAGONALS
 from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
@@ -61,6 +61,9 @@ class SlabIncrementMover(SlabMover):
     def __init__(self, motion, coupling):
         super().__init__(motion, coupling)
         self.n = int(self.params.increments)
+        triangulated = getattr(self.params, "diagonals", None) is not None       # the spring's kernel takes codes
+        self.fractions = schedule(self.kernel(np.zeros(len(self.quads), dtype=int) if triangulated else None),
+                                  self.n)[0]     # each increment's share of the motion (the settings' alone)
         self.matrices = [self.new_matrix() for _ in range(self.n)]     # increment k's system
         self.trials = {}                                 # the spring's selective diagonals: code -> matrix
         self.owners = [None] * self.n                    # the move (its token) whose A_k each matrix holds
@@ -119,7 +122,7 @@ class SlabIncrementMover(SlabMover):
     def failure(self, report: MoveReport, problem, x: np.ndarray, k: int, err: NumericalError) -> NumericalError:
         """The error of increment ``k`` failing from the accepted ``x`` (2n,, replicated): the same
         message and diagnostic on every rank, with the worst element of ``x`` where the mesh had moved."""
-        quality_now = quality_record(problem, x.reshape(-1, 2), k / self.n)
+        quality_now = quality_record(problem, x.reshape(-1, 2), float(np.sum(self.fractions[:k])))
         where = "" if not np.any(x) else (
             f"; after increment {k} the worst element is {quality_now['worst_element']} (skewness "
             f"{quality_now['min_skewness']:.3g}, {quality_now['n_inverted']} inverted) at {place(quality_now['worst_location'])}")
@@ -144,20 +147,21 @@ class SlabIncrementMover(SlabMover):
         target = prescribed.copy() if d.blend is not None else np.where(self.is_fixed, prescribed, 0.0)
         t0, counts = time.perf_counter(), self.solver_counts()
         report = MoveReport(mover=self.mover.name)
-        step = target / self.n
         codes, choice = None, getattr(self.params, "diagonals", None)      # the spring's triangulation
         if choice is not None:
-            codes = (self.diagonals(d, step) if choice == "selective"
+            codes = (self.diagonals(d, self.fractions[0] * target) if choice == "selective"
                      else np.full(len(self.quads), DIAGONALS.index(choice)))
             report.linear_solves += 2 if choice == "selective" else 0
         kernel = self.kernel(codes)
+        extrapolations = schedule(kernel, self.n)[1]
         lin = SlabMoveLinearization(self, d, kernel, target, rho, next(self.tokens))
         x = np.zeros_like(target)
-        states, dx, a = [x], None, kernel.extrapolation
+        states, dx = [x], None
         for k in range(self.n):
+            a = extrapolations[k]
             at = x + a * dx if a and dx is not None else x
             try:
-                dx = self.increment(d, kernel, at, step, self.matrices[k], self.rtol)
+                dx = self.increment(d, kernel, at, self.fractions[k] * target, self.matrices[k], self.rtol)
             except NumericalError as err:
                 report.message = str(err)
                 raise self.failure(report, problem, x, k, err) from err
@@ -166,7 +170,7 @@ class SlabIncrementMover(SlabMover):
             states.append(x)
             report.linear_solves += 1
             report.increments += 1
-            report.quality.append(quality_record(problem, x.reshape(-1, 2), (k + 1) / self.n))
+            report.quality.append(quality_record(problem, x.reshape(-1, 2), float(np.sum(self.fractions[:k + 1]))))
         lin.states = states
         last = report.quality[-1]
         now = self.solver_counts()
@@ -234,7 +238,7 @@ class SlabIncrements:
         self.edge = np.flatnonzero(m.is_fixed[m.dofs].any(axis=1))
         self.dofs_edge = m.dofs[self.edge]
         self.dx, self.forces, self.WK_edge, self.WD, self.Kdx = [], [], [], [], []
-        self.a = lin.kernel.extrapolation
+        self.fractions, self.a = schedule(lin.kernel, len(lin.states) - 1)   # h_k, a_k
         self.points = stiffness_points(lin.states, self.a)             # y_k
         for k, y_k in enumerate(self.points):
             dx = lin.states[k + 1] - lin.states[k]
@@ -273,16 +277,15 @@ class SlabIncrements:
     def jvp(self, t_dot: np.ndarray) -> np.ndarray:
         """Tangent sweep: ``x_dot`` (2n,) along the change ``t_dot`` (2n,) of the target."""
         m, d = self.m, self.d
-        step = np.asarray(t_dot, dtype=float).reshape(-1) / m.n
-        step_p = np.where(m.is_fixed, step, 0.0)
-        moved = bool(np.any(step_p))
-        a = self.a
-        x_dot = x_dot_before = np.zeros_like(step)
+        t_dot = np.asarray(t_dot, dtype=float).reshape(-1)
+        moved = bool(np.any(t_dot[m.fixed]))
+        x_dot = x_dot_before = np.zeros_like(t_dot)
         for k in range(m.n):
+            step, a = self.fractions[k] * t_dot, self.a[k]             # d_dot and a_k of increment k
             rhs = d.diag * step                                        # S_c d_dot
             if moved:
-                rhs -= self.edge_apply(k, step_p)
-            if self.WD[k] is not None:                   # y_dot_k = x_dot_k + a (x_dot_k - x_dot_(k-1))
+                rhs -= self.edge_apply(k, np.where(m.is_fixed, step, 0.0))
+            if self.WD[k] is not None:                   # y_dot_k = x_dot_k + a_k (x_dot_k - x_dot_(k-1))
                 rhs -= self.shape_apply(k, x_dot + a * (x_dot - x_dot_before) if a else x_dot)
             rhs[m.fixed] = step[m.fixed]
             dx = self.solve(k, rhs, False)
@@ -293,29 +296,31 @@ class SlabIncrements:
     def vjp(self, x_bar: np.ndarray):
         """Reverse sweep: ``(target_bar (2n,), stiffening_bar (moving quads,), blend_bar (n,))``."""
         m, d, lin = self.m, self.d, self.lin
-        step = lin.target / m.n
         x_bar = np.array(x_bar, dtype=float).reshape(-1)
-        step_bar = np.zeros_like(x_bar)
+        target_bar = np.zeros_like(x_bar)
         f_slab = np.zeros(len(m.quads))
         s_bar = np.zeros(x_bar.size // 2)
-        a, carry = self.a, 0.0                           # carry: increment k+1's share of x_k's adjoint
+        carry = 0.0                                      # carry: increment k+1's share of x_k's adjoint
         for k in range(m.n - 1, -1, -1):
+            a, h = self.a[k], self.fractions[k]
             b = x_bar.copy()
             b[m.fixed] = 0.0
             lam = self.solve(k, b, True)
             lam[m.fixed] = 0.0
-            step_bar[m.fixed] += x_bar[m.fixed] - self.edge_apply(k, lam, transpose=True)[m.fixed]
+            step_bar = np.zeros_like(x_bar)              # increment k's d_bar (d = h_k target)
+            step_bar[m.fixed] = x_bar[m.fixed] - self.edge_apply(k, lam, transpose=True)[m.fixed]
             if d.blend is not None:                      # the increment's D = W K dx + S_c (dx - d)
-                t_blend, s_part = d.blend.partials(lam, self.dx[k], step, self.Kdx[k])
+                t_blend, s_part = d.blend.partials(lam, self.dx[k], h * lin.target, self.Kdx[k])
                 step_bar -= t_blend
                 s_bar -= s_part
+            target_bar += h * step_bar
             f_slab -= np.einsum("ea,ea->e", (d.weight * lam)[m.dofs], self.forces[k])
             y_bar = None if self.WD[k] is None else -self.shape_apply(k, lam, transpose=True)  # d/dy_k [...]
-            if a:                                        # y_k = (1 + a) x_k - a x_(k-1)
-                x_bar = x_bar + carry + ((1 + a) * y_bar if y_bar is not None else 0.0)
-                carry = 0.0 if y_bar is None else -a * y_bar
-            elif y_bar is not None:
-                x_bar = x_bar + y_bar
+            x_bar = x_bar + carry                        # y_k = (1 + a_k) x_k - a_k x_(k-1)
+            carry = 0.0
+            if y_bar is not None:
+                x_bar = x_bar + (1 + a) * y_bar if a else x_bar + y_bar
+                carry = -a * y_bar if a else 0.0
         f_bar = np.zeros(len(m.motion.base.quads))
         f_bar[m.local] = f_slab
-        return step_bar / m.n, m.allsum(f_bar), s_bar
+        return target_bar, m.allsum(f_bar), s_bar
