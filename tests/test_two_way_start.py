@@ -305,3 +305,33 @@ def test_a_line_search_trial_over_its_bound_skips_the_largest_block():
     assert value == 2.0 and calls == ["x", "w", "u"]                 # under the bound: every block
     blocks[1].value = np.nan
     assert scaled_merit(blocks, scales, {}, None, None)[0] == np.inf
+
+
+def test_a_ramps_last_step_rebuilds_couplings_kept_from_far_once_near_the_solution(one_way_start, monkeypatch):
+    """The step to the full inflow (E = 2.2 kPa: direct attempt fails, ramp 0.5, 1) keeps the slow
+    couplings of its last far iterate (one whose predecessor contracted by less than
+    ``SLOW_CONTRACTION``) and rebuilds them once more at the first iterate whose merit fell below
+    ``NEAR_REBUILD`` of that iterate's, and nowhere else. Truths: the state satisfies the full
+    problem's residuals, and it is the state the same Newton reaches without the rule (to the
+    coupling tolerance), which takes no fewer Newton steps."""
+    from tofsi.coupling import monolithic
+    gamma, guess = one_way_start
+    problem, state = first_two_way(gamma, guess, "structure.youngs_modulus=2.2e3")
+    assert state.reports["load_ramp"]["steps"] == [0.5, 1.0]
+    history = state.reports["coupling"]["history"]
+    merits = [max(h[n] for n in ("w", "u", "x")) for h in history]
+    rebuilt = [i for i, h in enumerate(history) if h.get("couplings_rebuilt")]
+    far = [i for i in rebuilt if merits[i] > monolithic.SLOW_CONTRACTION * merits[i - 1]]
+    near = [i for i in rebuilt if i not in far]
+    assert far and len(near) == 1, (merits, rebuilt)
+    k, built = near[0], max(i for i in far if i < near[0])
+    assert merits[k] < monolithic.NEAR_REBUILD * merits[built] <= merits[k - 1]
+    assert_solves_the_full_problem(problem, state, gamma)
+    monkeypatch.setattr(monolithic, "NEAR_REBUILD", 0.0)              # the rule off
+    _, without = first_two_way(gamma, guess, "structure.youngs_modulus=2.2e3")
+    before = without.reports["coupling"]["history"]
+    assert not any(h.get("couplings_rebuilt") for h in before[k:])       # teeth: nothing rebuilt there
+    assert len(before) >= len(history)
+    for f in ("u", "x", "w"):
+        ref = getattr(without, f)
+        assert np.abs(getattr(state, f) - ref).max() <= 1e-7 * np.abs(ref).max()

@@ -15,8 +15,14 @@ shape derivatives with respect to the mesh motion) are built at the first
 iterate and kept while the Newton contracts (a step that leaves more than
 ``SLOW_CONTRACTION`` of the residual rebuilds them at its iterate); the
 converged state's exact couplings are built once, for the adjoint
-(:class:`CoupledLinearization`). A Newton whose residual falls by less than
-``STALL_FACTOR`` in ``STALL_ITERATIONS`` steps stops early (a load step's
+(:class:`CoupledLinearization`). In a step of the inflow ramp (``load_step``), couplings
+rebuilt at such a far iterate are rebuilt once more at the first iterate whose merit fell
+below ``NEAR_REBUILD`` of theirs: kept from far away they hold the Newton's tail to a
+linear rate (the large scene's step to its full inflow at 160 x 80: 2.7e-3, 3.7e-4,
+1.3e-5, 2.2e-7, 3.2e-9, 1.3e-10 with the couplings of an iterate at 0.42; 3.7e-4, 1.2e-5,
+8e-9, 2.6e-11 with them rebuilt at 2.7e-3: one Newton step fewer, for one rebuild of the
+shape derivatives; at 80 x 40 and 40 x 20, E = 1.5-3 kPa, as many). A Newton whose
+residual falls by less than ``STALL_FACTOR`` in ``STALL_ITERATIONS`` steps stops early (a load step's
 cutback is cheaper than its crawl). In a step of the inflow ramp (``load_step``), after a
 Newton step that contracted by less than ``SLOW_CONTRACTION`` the block preconditioner's small
 diagonal blocks are factorized at the iterate (the structure's and the mesh's; the flow's
@@ -61,6 +67,7 @@ EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exact
 SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the merit rebuilds the kept couplings
 STALL_ITERATIONS = 16    # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
 STALL_FACTOR = 2.0
+NEAR_REBUILD = 1e-2      # a load step's slow couplings rebuilt far are rebuilt once more where the merit fell below this of theirs
 SWEEP_TOL = 1e-2         # the scaled residual the starting sweep of a loose solve (a ramp's step) solves each block to
 
 
@@ -105,6 +112,7 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
         return scaled_merit(blocks, scales, values, rho, params, linearize, bound)
 
     accepted = None                                 # the accepted full step's linearizations
+    kept_at = None                                  # the merit of a far iterate whose slow couplings are kept
     for it in range(s.max_iter + 1):
         lins = accepted or {b.name: b.linearize(fields, rho, params) for b in blocks}
         R = [lins[b.name].residual for b in blocks]
@@ -129,14 +137,20 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
                 f"{merits[-1 - STALL_ITERATIONS]:.3g} to {merits[-1]:.3g} in {STALL_ITERATIONS} Newton steps",
                 {"history": history})
         far = it > 0 and merits[-1] > SLOW_CONTRACTION * merits[-2]    # the last step contracted little
+        near = bool(kept) and load_step and kept_at is not None and merits[-1] < NEAR_REBUILD * kept_at
         if kept and far:                                                 # kept ones gone stale
             log.info("monolithic Newton %d: the residual contracted by only %.2f; the slow couplings "
                      "of this iterate from here on", it, merits[-1] / merits[-2])
+        elif near:                                                       # kept ones from far away
+            log.info("monolithic Newton %d: the residual fell to %.2g of the iterate whose slow couplings "
+                     "are kept; this iterate's from here on", it, merits[-1] / kept_at)
+        if kept and (far or near):
             history[-1]["couplings_rebuilt"] = True
             kept = None
         if kept is None and s.quasi_newton:         # the slow couplings of the first iterate (or a later)
             kept = {(b.name, o): lins[b.name].coupling(o) for b in blocks
                     for o in getattr(b, "slow_couplings", ()) if o in comp}
+            kept_at = None if near and not far else merits[-1]  # a load step rebuilds them once more near the solution
         b = -np.concatenate(R)
         eta = forcing_term(merits, tol)           # inexact Newton
         at = JacobianPoint.at(rho, params, fields)         # names the factors made of this iterate
