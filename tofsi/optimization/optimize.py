@@ -40,10 +40,12 @@ current stage -- failed trials included -- and the last coupled state;
 ``resume`` restarts the stage from its first design and replays the stored
 evaluations bit for bit (NLopt is deterministic given the same values, the
 fallbacks too) until it passes the interruption, then computes on. Every
-computed evaluation creates its own solvers (so its factorizations depend on
-nothing earlier) and is warm-started from the previous evaluation's fields,
-which a resume restores exactly: the resumed history equals the
-uninterrupted one bit for bit. The checkpointed fields are the block
+computed evaluation creates its own solvers, except that a two-way Newton
+starts from the block factors the previous evaluation left
+(:mod:`tofsi.optimization.carried_factors`), and is warm-started from the
+previous evaluation's fields; a resume restores both exactly (the factors
+made again from the Jacobian points the checkpoint records): the resumed
+history equals the uninterrupted one bit for bit. The checkpointed fields are the block
 system's (``model.system.names``).
 """
 
