@@ -17,7 +17,8 @@ import numpy as np
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
 from movers.increment_solvers import increment_solver
-from movers.incremental import IncrementKernel, MoveRecord, increments_jvp, increments_vjp, run_increments
+from movers.increment_kernel import IncrementKernel
+from movers.incremental import MoveRecord, increments_jvp, increments_vjp, run_increments
 from tofsi.core.config import option
 from tofsi.core.errors import NumericalError
 from tofsi.fem.elasticity import element_stiffness, lame

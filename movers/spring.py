@@ -30,8 +30,8 @@ import numpy as np
 from movers.base import Mover, MoveReport, MoveResult
 from movers.problem import MotionProblem
 from movers.increment_solvers import increment_solver
-from movers.incremental import (IncrementKernel, MoveRecord, increment, increments_jvp, increments_vjp,
-                                run_increments, schedule)
+from movers.increment_kernel import IncrementKernel, schedule
+from movers.incremental import MoveRecord, increment, increments_jvp, increments_vjp, run_increments
 from movers.spring_kernel import DIAGONALS, TriangleSplit, quad_force_derivative, quad_stiffness
 from tofsi.mesh import quality
 from tofsi.core.config import option
@@ -40,7 +40,7 @@ from tofsi.core.kept import Kept, input_key
 
 CHOICES = ("1-3", "2-4", "both", "selective")
 SCHEMES = ("euler", "midpoint")
-EXTRAPOLATION = {"euler": 0.0, "midpoint": 0.5}     # movers.incremental.IncrementKernel's
+EXTRAPOLATION = {"euler": 0.0, "midpoint": 0.5}     # movers.increment_kernel.IncrementKernel's
 
 
 @dataclass(frozen=True)

@@ -8,10 +8,10 @@ apply the structure's motion ``t`` in ``N`` equal steps ``d = t / N`` on the upd
     K_k = sum_e f_e K0_e(X + y_k),   x_(k+1) = x_k + dx,
 
 ``y_k = x_k + a (x_k - x_(k-1))`` the increment's stiffness point (``a = 0``: its start; the
-spring's ``scheme = "midpoint"``: ``a = 1/2``, :class:`movers.incremental.IncrementKernel`).
+spring's ``scheme = "midpoint"``: ``a = 1/2``, :class:`movers.increment_kernel.IncrementKernel`).
 
 :class:`SlabIncrementMover` does that with the serial mover's own element kernel
-(:class:`movers.incremental.IncrementKernel`) on the moving quads of the rank's slab only: each
+(:class:`movers.increment_kernel.IncrementKernel`) on the moving quads of the rank's slab only: each
 rank evaluates ``K0_e(X + y_k)`` of its quads, the right-hand side is the sum over ranks of the
 slabs' products, and ``A_k`` is assembled by the slabs into a distributed AIJ matrix
 (:class:`~tofsi.parallel.slab_matrix.SlabMatrix`, one per increment) solved by GMRES to
@@ -26,7 +26,7 @@ The derivatives of a move (:class:`SlabIncrements`, built on first use) follow
 :func:`movers.incremental.increments_jvp` and :func:`~movers.incremental.increments_vjp`
 term by term, each rank holding its quads' share: the element forces ``K0_e dx_e``, the rows
 ``W f K0_e`` of the quads with a fixed dof, the shape derivative ``W f D_k`` of the forces
-(:meth:`~movers.incremental.IncrementKernel.force_derivative`) as element blocks ``(E_r, 8, 8)``,
+(:meth:`~movers.increment_kernel.IncrementKernel.force_derivative`) as element blocks ``(E_r, 8, 8)``,
 applied and summed over the ranks; the solves with ``A_k`` and ``A_k^T`` by the exact MUMPS
 factors of the move's own ``A_k`` (made on first use; they then precondition the next moves, as
 the serial store gives its factors back). The stiffening's and the blend's adjoints are chained
@@ -43,7 +43,7 @@ import numpy as np
 from movers.base import MoveReport, element_apply, quality_record
 from movers.failure import at as place, non_finite_matrices
 from movers.increment_solvers import KEPT_FACTORS_TOL_RATIO
-from movers.incremental import schedule, stiffness_points
+from movers.increment_kernel import schedule, stiffness_points
 from movers.spring_kernel import DIAGONALS
 from tofsi.core.errors import NumericalError
 from tofsi.fem.assembly import assemble_vector
@@ -72,7 +72,7 @@ class SlabIncrementMover(SlabMover):
         self.design_key = None                           # the densities the kept factors belong to
 
     def kernel(self, codes: np.ndarray | None = None):
-        """The serial mover's :class:`~movers.incremental.IncrementKernel` of the slab's quads
+        """The serial mover's :class:`~movers.increment_kernel.IncrementKernel` of the slab's quads
         (a mover that triangulates its quads, the spring: for the diagonal ``codes`` of those quads)."""
         return self.mover.element_matrices() if codes is None else self.mover.element_matrices(codes)
 
