@@ -51,15 +51,14 @@ class IncrementKernel:
         return corner_derivatives(lambda Xc: np.einsum("eab,eb->ea", self.matrices(Xc), v), Xe)
 
 
-def schedule(kernel, n: int) -> tuple[np.ndarray, list[float]]:
+def schedule(kernel: IncrementKernel, n: int) -> tuple[np.ndarray, list[float]]:
     """The ``n`` increments' shares ``h_k`` of the motion (summing to 1; the first
     :class:`IncrementKernel`'s ``first`` where it is set and ``n > 1``, the others equal) and their
     extrapolations ``a_k`` (``a_0 = 0``, ``a_k = a h_k / h_(k-1)``, ``a`` the kernel's
     ``extrapolation``): increment ``k`` moves by ``h_k`` times the target with the stiffness at
     ``y_k = x_k + a_k (x_k - x_(k-1))``, the midpoint of the increment (``a = 1/2``) extrapolated
     from the increment before, whatever their sizes."""
-    first = float(getattr(kernel, "first", 0.0))
-    a = float(getattr(kernel, "extrapolation", 0.0))
+    first, a = kernel.first, kernel.extrapolation
     if first and n > 1:
         fractions = np.full(n, (1.0 - first) / (n - 1))
         fractions[0] = first

@@ -144,7 +144,7 @@ def stiffness_and_system(problem: MotionProblem, element_matrices: ElementMatric
 
 
 def run_increments(problem: MotionProblem, target: np.ndarray, n: int,
-                   element_matrices: ElementMatrices, solver, report: MoveReport,
+                   element_matrices: IncrementKernel, solver, report: MoveReport,
                    progress=None, blend=None, record: MoveRecord | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
     """Apply ``target`` (2n,) in ``n`` increments (their shares of it and stiffness points:
     :func:`schedule`); returns ``x_N`` and ``[x_0, ..., x_N]`` (``record`` receives what the
