@@ -30,7 +30,14 @@ converging design change went more than 4 Newton steps without halving its resid
 failing trial designs' Newtons crawled 6-16 (their step lengths 1/8-1/128) until the line search
 or the stall rule stopped them (8: twice the converging ones' worst); the two fallbacks' six failed
 solves took 100 Newton iterates, 79 with this rule, the optimizer's path unchanged (at
-160 x 80 every failed solve stopped by it, 303 s CPU against 396 s for the same end). In a step of
+160 x 80 every failed solve stopped by it, 303 s CPU against 396 s for the same end). A design
+change's Newton also stops at its ``DESIGN_SHORT_STEPS``-th step that the line search cut to
+``SHORT_STEP`` (1/16) of its length or less (a Newton direction good for a sliver of itself): over
+the large example's whole optimization the converging design changes took at most one such step
+(80 x 40; none at 160 x 80, whose shortest was 1/8), the failing ones 3-11 (160 x 80: 3-8), most
+long before their stall window; with the rule the six failed solves take 47 Newton iterates, not
+79 (80 x 40), 42, not 81 (160 x 80: the fallbacks 33 and 44 s CPU, not 54 and 61), the
+optimizer's path unchanged (benchmarks/README.md). In a step of
 the inflow ramp (``load_step``), after a Newton step that contracted by less than ``SLOW_CONTRACTION`` the block preconditioner's small
 diagonal blocks are factorized at the iterate (the structure's and the mesh's; the flow's
 factors are kept): the large scene's step to its full inflow at 80 x 40 took 83 GMRES
