@@ -17,11 +17,10 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from test_monolithic_stall import CrawlingSystem
 
 from tofsi.core.errors import NumericalError
 from tofsi.coupling.monolithic import DESIGN_SHORT_STEPS, SHORT_STEP, solve_monolithic
-
-from test_monolithic_stall import CrawlingSystem
 
 
 def overshooting(overshoot: float) -> CrawlingSystem:
