@@ -30,7 +30,14 @@ converging design change went more than 4 Newton steps without halving its resid
 failing trial designs' Newtons crawled 6-16 (their step lengths 1/8-1/128) until the line search
 or the stall rule stopped them (8: twice the converging ones' worst); the two fallbacks' six failed
 solves took 100 Newton iterates, 79 with this rule, the optimizer's path unchanged (at
-160 x 80 every failed solve stopped by it, 303 s CPU against 396 s for the same end). In a step of
+160 x 80 every failed solve stopped by it, 303 s CPU against 396 s for the same end). A design
+change's Newton also stops at its ``DESIGN_SHORT_STEPS``-th step that the line search cut to
+``SHORT_STEP`` (1/16) of its length or less (a Newton direction good for a sliver of itself): over
+the large example's whole optimization the converging design changes took at most one such step
+(80 x 40; none at 160 x 80, whose shortest was 1/8), the failing ones 3-11 (160 x 80: 3-8), most
+long before their stall window; with the rule the six failed solves take 47 Newton iterates, not
+79 (80 x 40), 42, not 81 (160 x 80: the fallbacks 33 and 44 s CPU, not 54 and 61), the
+optimizer's path unchanged (benchmarks/README.md). In a step of
 the inflow ramp (``load_step``), after a Newton step that contracted by less than ``SLOW_CONTRACTION`` the block preconditioner's small
 diagonal blocks are factorized at the iterate (the structure's and the mesh's; the flow's
 factors are kept): the large scene's step to its full inflow at 80 x 40 took 83 GMRES
@@ -75,6 +82,8 @@ SLOW_CONTRACTION = 0.5   # a quasi-Newton step that leaves more than this of the
 STALL_ITERATIONS = 16    # a Newton whose merit fell by less than STALL_FACTOR over this many steps stops
 STALL_FACTOR = 2.0
 DESIGN_STALL_ITERATIONS = 8  # the same for a design change's Newton (from a converged state, no load step)
+SHORT_STEP = 1.0 / 16    # a line search's accepted step this short: the Newton step's linear model failed far from its end
+DESIGN_SHORT_STEPS = 3   # a design change's Newton stops at its this-many-th such step
 NEAR_REBUILD = 1e-2      # a load step's slow couplings rebuilt far are rebuilt once more where the merit fell below this of theirs
 SWEEP_TOL = 1e-2         # the scaled residual the starting sweep of a loose solve (a ramp's step) solves each block to
 
@@ -111,6 +120,7 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
     rho, params = state.rho, state.params
     design_change = not load_step and all(fields[n] is not None for n in comp)   # from a converged state
     stall = DESIGN_STALL_ITERATIONS if design_change else STALL_ITERATIONS
+    short_steps = 0                                 # a design change's accepted steps of at most SHORT_STEP
     system.start(comp, fields, state, direct=direct, tol=SWEEP_TOL if tol > s.tol or direct else None)
     solver = system.linear_solver(comp)
     if recycled is not None:
@@ -180,6 +190,13 @@ def solve_monolithic(system, comp, fields, state, direct: bool = False, tol: flo
         if found[0] < 1.0:
             log.info("monolithic Newton %d: step length %g", it, found[0])
         fields.update(values)
+        short_steps += design_change and found[0] <= SHORT_STEP
+        if short_steps >= DESIGN_SHORT_STEPS:
+            raise NumericalError(
+                f"monolithic coupling crawled: {short_steps} of {it + 1} Newton steps of a design change "
+                f"were cut to at most {SHORT_STEP:g} of their length by the line search (the largest "
+                f"scaled residual {merits[0]:.3g} at its start, {merits[-1]:.3g} before its last step)",
+                {"history": history})
     raise NumericalError(f"monolithic coupling did not converge in {s.max_iter} Newton iterations",
                          {"history": history})
 
