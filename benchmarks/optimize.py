@@ -35,7 +35,8 @@ figures (issue 32's research resolution: 160 x 80 and 320 x 160):
                                   [--set KEY=VALUE ...]
 
 ``--set`` overrides scene values as ``tofsi``'s option does (e.g. ``--large --set
-mover.name=spring``: the large scene with the spring analogy in its 10 increments).
+mover.name=spring``: the large scene with the spring analogy in the scene's increments, 3
+midpoint ones, the first 0.1 of the motion).
 """
 
 from __future__ import annotations

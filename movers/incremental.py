@@ -237,7 +237,7 @@ class IncrementDerivatives:
         trusted = self.trusted.get(key)
         if trusted is None:
             trusted = False
-            if solver.exact and hasattr(solver, "A"):
+            if solver.exact:                         # a DirectSolver: its matrix A kept
                 x = solver.preconditioner(transpose)(b)
                 A = solver.A.T if transpose else solver.A
                 residual = np.linalg.norm(b - A @ x)

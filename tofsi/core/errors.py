@@ -53,6 +53,7 @@ class NumericalError(TofsiError, RuntimeError):
         self.diagnostic = dict(diagnostic or {})
         self.state = state        # the last state reached (e.g. a mesh displacement), if any
         self.solved = {}          # the fields a coupled sweep solved before this failure, by name
+        self.accepted = None      # a failed load ramp's last converged state (None: none)
         super().__init__(message)
 
     def __reduce__(self):

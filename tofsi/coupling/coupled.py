@@ -174,10 +174,9 @@ class CoupledModel:
     def _add_quality(self, err: NumericalError) -> None:
         """A failed load ramp's diagnostic without the mesh's quality gets that of its last
         converged state (the mesh as far as it moved; the command line's --json reports it)."""
-        accepted = getattr(err, "accepted", None)
-        if "quality" in err.diagnostic or accepted is None or accepted.x is None:
+        if "quality" in err.diagnostic or err.accepted is None or err.accepted.x is None:
             return
-        q = quality.summary(self.mesh.points, self.mesh.points + accepted.mesh_displacement, self.mesh.quads)
+        q = quality.summary(self.mesh.points, self.mesh.points + err.accepted.mesh_displacement, self.mesh.quads)
         err.diagnostic["quality"] = {"load": err.diagnostic.get("load"), "min_skewness": q.min_skewness,
                                      "min_area_change": q.min_area_change, "max_area_change": q.max_area_change,
                                      "n_inverted": q.n_inverted, "worst_element": q.min_skewness_element,

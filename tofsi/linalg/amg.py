@@ -60,6 +60,7 @@ from pyamg.util.linalg import approximate_spectral_radius
 from pyamg.util.utils import get_diagonal, scale_rows
 
 from tofsi.core.errors import NumericalError
+from tofsi.linalg.solver_kind import SolverKind
 
 log = logging.getLogger(__name__)
 
@@ -191,7 +192,7 @@ def _smoothed_aggregation(A, B, symmetric: bool) -> MultilevelSolver:
     return MultilevelSolver([fine] + rest.levels, coarse_solver="splu")
 
 
-class AMGSolver:
+class AMGSolver(SolverKind):
     """Smoothed-aggregation AMG (pyamg) with CG for symmetric positive definite ``A``.
 
     near_null : near-null-space vectors (rigid-body modes for elasticity). The
@@ -201,7 +202,6 @@ class AMGSolver:
     preconditioning each (:meth:`preconditioner`), until it goes stale.
     """
 
-    exact = False
     linear_preconditioner = True    # a V-cycle is one fixed linear operator (GMRES(m) in RecyclingSolver)
     setup_iterations = 12      # a hierarchy costs about 12 preconditioned CG iterations to build
 

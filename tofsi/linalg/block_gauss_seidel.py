@@ -38,12 +38,13 @@ from tofsi.core.errors import NumericalError
 from tofsi.linalg.backends import canonical_csr
 from tofsi.linalg.block_matrix import BlockMatrix
 from tofsi.linalg.direct import DirectSolver
-from tofsi.linalg.recycling import GMRES_RESTART, flexible_gmres
+from tofsi.linalg.recycling import flexible_gmres
+from tofsi.linalg.solver_kind import GMRES_RESTART, SolverKind
 
 log = logging.getLogger(__name__)
 
 
-class BlockGaussSeidel:
+class BlockGaussSeidel(SolverKind):
     """Block lower-triangular preconditioner of a field-block matrix, and GMRES with it.
 
     A : the square matrix, a :class:`~tofsi.linalg.BlockMatrix` of the fields' blocks, or an
@@ -58,8 +59,6 @@ class BlockGaussSeidel:
     :mod:`tofsi.optimization.carried_factors`).
     """
 
-    exact = False
-    symmetric = False
     follows_matrix = True      # preconditioner(transpose, matrix): the sweep takes the matrix's couplings
     setup_iterations = 15      # factorizing the diagonal blocks costs about 15 GMRES iterations (measured on
                                # the large scene: 13 sweeps at 80 x 40, 16 at 160 x 80)

@@ -20,13 +20,14 @@ import scipy.sparse as sp
 from tofsi.core.errors import NumericalError
 from tofsi.linalg.backends import analysis_for, canonical_csr, get_backend
 from tofsi.linalg.ordering import nested_dissection
+from tofsi.linalg.solver_kind import SolverKind
 
 log = logging.getLogger(__name__)
 PROGRESS_SIZE = 100_000          # systems at least this large report their factorization
 ROUND_OFF = 64 * np.finfo(float).eps   # componentwise backward error that counts as exact
 
 
-class DirectSolver:
+class DirectSolver(SolverKind):
     """Sparse LU of ``A``, reusable for ``A x = b`` and ``A^T x = b``.
 
     coords : optional integer grid positions ``(m, 2)`` of the unknowns, for

@@ -115,6 +115,7 @@ import scipy.sparse.linalg as spla
 
 from tofsi.core.errors import NumericalError
 from tofsi.linalg.amg import ONE_SWEEP, smoothed_aggregation, v_cycle
+from tofsi.linalg.solver_kind import SolverKind
 from tofsi.linalg.block_matrix import SaddlePointMatrix
 from tofsi.linalg.krylov import gmres
 
@@ -153,7 +154,7 @@ def _amg(M: sp.csr_matrix, near_null=None, symmetric: bool = False):
     return smoothed_aggregation(M, near_null, symmetric, ONE_SWEEP)
 
 
-class BlockSaddlePreconditioner:
+class BlockSaddlePreconditioner(SolverKind):
     """Block-triangular preconditioner of a saddle-point matrix, and GMRES(m) with it.
 
     A : the square matrix ``[[A, B^T], [B, C]]`` with the first ``n_velocity`` unknowns the
@@ -167,10 +168,9 @@ class BlockSaddlePreconditioner:
         and with ``J^T``
     """
 
-    exact = False
-    symmetric = False
     linear_preconditioner = True    # one fixed linear operator: GMRES(m), not FGMRES
     restart = RESTART
+    own_krylov = True         # solve_with: GMRES in its own scaled norm
     setup_iterations = 8       # measured: one AMG setup costs about as much as 8 FGMRES iterations
 
     def __init__(self, A: sp.spmatrix, n_velocity: int, mass: np.ndarray, darcy_weights: np.ndarray | None,

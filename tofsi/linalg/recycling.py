@@ -13,7 +13,6 @@ from tofsi.core.errors import NumericalError
 from tofsi.linalg.krylov import gmres
 
 log = logging.getLogger(__name__)
-GMRES_RESTART = 50          # restart length of GMRES preconditioned by an AMG cycle
 
 
 def flexible_gmres(A, b: np.ndarray, apply, goal: float, max_iter: int, restart: int, x0=None):
@@ -108,7 +107,7 @@ class RecyclingSolver:
         r0 = bnorm if x0 is None else float(np.linalg.norm(b - A @ x0))
         if r0 <= goal:
             return (np.zeros_like(b) if x0 is None else x0), True
-        apply = (self.solver.preconditioner(transpose, matrix=A) if getattr(self.solver, "follows_matrix", False)
+        apply = (self.solver.preconditioner(transpose, matrix=A) if self.solver.follows_matrix
                  else self.solver.preconditioner(transpose))
         try:
             if self.solver.exact:
@@ -121,8 +120,8 @@ class RecyclingSolver:
                 if self.solver.symmetric:
                     x, its = self._cg(A, b, apply, x0, goal, cap)
                 else:                      # GMRES(m) for a fixed linear preconditioner, else FGMRES
-                    x, its = gmres(A, b, apply, goal, cap, getattr(self.solver, "restart", GMRES_RESTART), x0,
-                                   flexible=not getattr(self.solver, "linear_preconditioner", False))
+                    x, its = gmres(A, b, apply, goal, cap, self.solver.restart, x0,
+                                   flexible=not self.solver.linear_preconditioner)
         except ValueError:                      # an overflow in the Krylov basis (SciPy refuses inf): not
             log.info("Krylov solve: the basis overflowed")            # converged, as a NaN iterate is
             return np.full_like(b, np.nan), False
@@ -172,15 +171,16 @@ class RecyclingSolver:
         """Refactorize at ``A`` the cheap part of a preconditioner that has one (a block
         preconditioner's small diagonal blocks, :meth:`BlockGaussSeidel.refactor_small_blocks`);
         True when done. A failed factorization leaves the solver stale."""
-        refactor = getattr(self.solver, "refactor_small_blocks", None)
-        if refactor is None or not self._usable(A):
+        if not self._usable(A):
             return False
         try:
-            refactor(A)
+            refactorized = self.solver.refactor_small_blocks(A)
         except ValueError:                  # not a block matrix of the preconditioner's sizes
             return False
         except NumericalError:
             self.stale = True
+            return False
+        if refactorized is None:            # no cheap part
             return False
         self.last_cost = self.last_excess = None
         return True
@@ -200,7 +200,7 @@ class RecyclingSolver:
                      self.last_cost, self.fresh_cost)
             partly = self._refresh_partly(A)
             self.stale, setups = not partly, 1
-        if self._usable(A) and hasattr(self.solver, "solve_with"):    # a solver with its own Krylov norm
+        if self._usable(A) and self.solver.own_krylov:
             try:
                 return self.solver.solve_with(A, b, transpose=True)
             except NumericalError:
