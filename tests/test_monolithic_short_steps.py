@@ -25,7 +25,7 @@ from tofsi.coupling.monolithic import DESIGN_SHORT_STEPS, SHORT_STEP, solve_mono
 
 def overshooting(overshoot: float) -> CrawlingSystem:
     system = CrawlingSystem()
-    system.linear_solver = lambda comp: SimpleNamespace(solver=None, solve=lambda J, b, rtol: overshoot * b)
+    system.linear_solver = lambda comp: SimpleNamespace(solver=None, last_excess=None, solve=lambda J, b, rtol: overshoot * b)
     return system
 
 

@@ -49,7 +49,7 @@ class CrawlingSystem:
                 fields[n] = np.ones(1)
 
     def linear_solver(self, comp):
-        return SimpleNamespace(solver=None, solve=lambda J, b, rtol: b / SHORTFALL)
+        return SimpleNamespace(solver=None, last_excess=None, solve=lambda J, b, rtol: b / SHORTFALL)
 
     def block_jacobian(self, lins, comp, kept=None, at=None):
         return SimpleNamespace(assembled=True)
@@ -83,7 +83,7 @@ def test_a_solve_from_rest_or_a_load_step_keeps_the_longer_window(start, load_st
 def test_the_rule_stops_only_a_crawl():
     """A step half the Newton step's (the merit halves at each step) converges, in 29 steps."""
     system = CrawlingSystem()
-    system.linear_solver = lambda comp: SimpleNamespace(solver=None, solve=lambda J, b, rtol: b / 2.0)
+    system.linear_solver = lambda comp: SimpleNamespace(solver=None, last_excess=None, solve=lambda J, b, rtol: b / 2.0)
     state = SimpleNamespace(rho=np.zeros(1), params=None, linearizations={}, coupled={}, reports={})
     fields = {"a": np.array([0.3]), "b": np.array([-0.2])}
     solve_monolithic(system, ("a", "b"), fields, state)

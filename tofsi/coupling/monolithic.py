@@ -74,7 +74,7 @@ import numpy as np
 from tofsi.core.errors import NumericalError
 from tofsi.core.iteration import backtracking, forcing_term
 from tofsi.coupling.jacobian_point import JacobianPoint
-from tofsi.linalg import BlockGaussSeidel, BlockMatrix
+from tofsi.linalg import BlockGaussSeidel, BlockMatrix, RecyclingSolver
 
 log = logging.getLogger(__name__)
 EXACT_STEP = 1e-10       # the relative tolerance of a Newton step solved "exactly" (after a failed line search)
@@ -265,11 +265,10 @@ def newton_step(system, comp, lins, kept, b, rtol, solver, fields, merit, norm, 
     return found, solver
 
 
-def crept(solver) -> bool:
+def crept(solver: RecyclingSolver) -> bool:
     """True when the solver's last GMRES solve took more iterations beyond a fresh block
     preconditioner's than refactorizing its small blocks costs (``refactor_iterations``)."""
-    excess = getattr(solver, "last_excess", None)
-    return excess is not None and excess > getattr(solver.solver, "refactor_iterations", np.inf)
+    return solver.last_excess is not None and solver.last_excess > solver.solver.refactor_iterations
 
 
 def refactor_small_blocks(solver, J: BlockMatrix, history: list) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 GMRES_RESTART = 50          # restart length of GMRES preconditioned by an AMG cycle
 
 
@@ -17,6 +19,8 @@ class SolverKind:
     linear_preconditioner : one fixed linear operator (GMRES(m)), else flexible GMRES
     restart : GMRES(m)'s m
     own_krylov : ``solve_with(A, b, transpose)`` solves with the solver's own Krylov norm
+    refactor_iterations : the Krylov iterations that refactorizing its cheap part costs
+        (:meth:`refactor_small_blocks`; infinite: it has none)
     """
 
     exact = False
@@ -25,6 +29,7 @@ class SolverKind:
     linear_preconditioner = False
     restart = GMRES_RESTART
     own_krylov = False
+    refactor_iterations = math.inf
 
     def refactor_small_blocks(self, A) -> list[int] | None:
         """Factorize again at ``A`` the preconditioner's cheap part; the blocks refactorized, or
